@@ -1,0 +1,36 @@
+"""`paper`: ViT-B/14 at 224x224 with the release's heads and hyper-parameters; for a GPU and real data."""
+
+CONFIG = {
+    "seed": 0,
+    "data": {
+        "render_size": (240, 320),
+        "input_size": 224,
+        "train_per_indenter": 20000,
+        "val_per_indenter": 1000,
+        "unseen_per_object": 500,
+        "sensor_test_per_indenter": 200,
+        "calib_samples": 100,
+        "fz_max": 15.0,
+        "shear_max": 2.0,
+        "shard_size": 1024,
+        "depth_eps": 0.05,
+    },
+    "model": {
+        "vit": {"dim": 768, "depth": 12, "heads": 12, "patch": 14, "mlp_ratio": 4.0, "layerscale": 1e-5},
+        "resnet": {"widths": (64, 128, 256, 512), "blocks": (2, 2, 2, 2)},
+        "regressor": {"widths": (512, 256, 128, 64)},
+        "decoder": {"kind": "paper", "channels": (512, 256, 256, 128)},
+    },
+    "train": {
+        "batch_size": 128,
+        "epochs": 100,
+        "lr_backbone": 1e-5,
+        "lr_heads": 5e-5,
+        "schedule": "constant",
+        "warmup_steps": 1000,
+        "ckpt_every": 2000,
+        "grad_clip": 0.0,
+    },
+    "pretrain": {"steps": 0, "batch_size": 128, "lr": 5e-4, "corpus_size": 0, "out_dim": 65536},
+    "calibrate": {"steps": 300, "lr": 1e-4, "batch_size": 32, "holdout": 0.2},
+}

@@ -1,0 +1,40 @@
+"""`quick`: the README's main command; every table end to end on a 2-core CPU in minutes.
+
+Scale note: 48x64 renders padded to 64x64, a ViT of dim 128 / depth 4 / patch 8, a few thousand
+presses. It shows the paper's effects at toy scale; it does not reproduce its absolute numbers.
+"""
+
+CONFIG = {
+    "seed": 0,
+    "data": {
+        "render_size": (48, 64),  # (H, W) of the simulated frame; 240x320 is native
+        "input_size": 64,  # square model input after pad + resize
+        "train_per_indenter": 600,
+        "val_per_indenter": 60,
+        "unseen_per_object": 100,
+        "sensor_test_per_indenter": 30,
+        "calib_samples": 100,
+        "fz_max": 15.0,
+        "shear_max": 2.0,
+        "shard_size": 512,
+        "depth_eps": 0.05,  # mm; the release's eps is 5 in its depth units
+    },
+    "model": {
+        "vit": {"dim": 128, "depth": 4, "heads": 4, "patch": 8, "mlp_ratio": 4.0, "layerscale": 1e-5},
+        "resnet": {"widths": (16, 32, 64, 128), "blocks": (2, 2, 2, 2)},
+        "regressor": {"widths": (256, 128, 64, 32)},
+        "decoder": {"kind": "tokens", "channels": (64, 32, 32, 16)},
+    },
+    "train": {
+        "batch_size": 64,
+        "epochs": 6,
+        "lr_backbone": 1e-4,
+        "lr_heads": 5e-4,
+        "schedule": "constant",  # constant | warmup_cosine
+        "warmup_steps": 50,
+        "ckpt_every": 200,
+        "grad_clip": 0.0,
+    },
+    "pretrain": {"steps": 1200, "batch_size": 64, "lr": 5e-4, "corpus_size": 6000, "out_dim": 1024},
+    "calibrate": {"steps": 200, "lr": 1e-4, "batch_size": 32, "holdout": 0.2},
+}
