@@ -1,0 +1,67 @@
+"""Write a split in the FeelAnyForce release layout (what the real data and users' own recordings use).
+
+    python -m ffjax.data.csv_layout --split DIR/unseen/banana --out OUT
+
+OUT/data.csv (columns tactile, depth, FT = "Fx Fy Fz Tx Ty Tz", torques 0), OUT/tactile/000000.png
+(colour PNGs, correct for cv2 and any viewer), OUT/depth/000000.npy (float64 mm, like the release),
+OUT/background.png. Paths in the CSV are relative to its folder, so OUT can be moved.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from ffjax.data.sources import BACKGROUND_NAME, CSV_NAME, open_split, write_rgb
+
+
+def write_csv(source, out, progress: bool = True) -> Path:
+    """Write every record of `source` to the release layout under `out`; returns the CSV path."""
+    out = Path(out)
+    (out / "tactile").mkdir(parents=True, exist_ok=True)
+    (out / "depth").mkdir(parents=True, exist_ok=True)
+    if source.background is None:
+        raise ValueError(f"{source!r} has per-row backgrounds; this writer expects one background per split")
+    write_rgb(out / BACKGROUND_NAME, source.background)
+    rows = []
+    n = len(source)
+    bar = tqdm(total=n, desc=f"csv {out.name}", disable=not progress, leave=False)
+    for a in range(0, n, 256):
+        b = source.read_range(a, min(a + 256, n))
+        for j in range(len(b["force"])):
+            i = a + j
+            img_rel, depth_rel = f"tactile/{i:06d}.png", f"depth/{i:06d}.npy"
+            write_rgb(out / img_rel, b["image"][j])
+            np.save(out / depth_rel, b["depth"][j].astype(np.float64))
+            f = b["force"][j]
+            # repr-exact float32 -> text: %.9g round-trips float32 exactly
+            ft = " ".join(f"{float(v):.9g}" for v in f) + " 0 0 0"
+            rows.append((img_rel, depth_rel, ft))
+        bar.update(len(b["force"]))
+    bar.close()
+    tmp = out / f"{CSV_NAME}.tmp{os.getpid()}"
+    with open(tmp, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["tactile", "depth", "FT"])
+        w.writerows(rows)
+    os.replace(tmp, out / CSV_NAME)
+    return out / CSV_NAME
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--split", required=True, help="a shard directory (or any split open_split reads)")
+    p.add_argument("--out", required=True,
+                   help="output folder (data.csv, tactile/, depth/, background.png)")
+    args = p.parse_args(argv)
+    path = write_csv(open_split(args.split), args.out)
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,306 @@
+"""Random-access sources over a split on disk: our npz shards, or the FeelAnyForce release CSV.
+
+Both yield the same record, `{"image": uint8 HxWx3 RGB, "background": uint8 HxWx3, "depth": float32 HxW mm,
+"force": float32 (3,)}`, and both also offer `read_range(start, stop)` (stacked arrays, the fast path used by
+statistics, evaluation and the converter) and a `forces` array read without touching any image.
+"""
+
+from __future__ import annotations
+
+import bisect
+import csv
+import json
+import math
+import os
+from collections import OrderedDict
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+SHARD_GLOB = "shard_*.npz"
+CSV_NAME = "data.csv"
+BACKGROUND_NAME = "background.png"
+
+
+class DataError(ValueError):
+    """A split on disk is malformed; the message names the file (and row) at fault."""
+
+
+def read_rgb(path: str | os.PathLike, what: str = "image") -> np.ndarray:
+    """Read a colour image as RGB uint8; a missing, unreadable or truncated file raises DataError."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"missing {what}: {path}")
+    raw = np.fromfile(path, dtype=np.uint8)
+    img = cv2.imdecode(raw, cv2.IMREAD_COLOR) if raw.size else None
+    if img is None:
+        raise DataError(f"unreadable or truncated {what}: {path}")
+    return np.ascontiguousarray(img[..., ::-1])  # cv2 decodes to BGR
+
+
+def write_rgb(path: str | os.PathLike, image: np.ndarray) -> None:
+    """Write an RGB uint8 image as a PNG (cv2 wants BGR), atomically."""
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image[..., ::-1]))
+    if not ok:
+        raise OSError(f"could not encode {path}")
+    tmp = f"{path}.tmp{os.getpid()}"
+    buf.tofile(tmp)
+    os.replace(tmp, path)
+
+
+def open_split(path: str | os.PathLike, background: str | os.PathLike | np.ndarray | None = None):
+    """Open a split: a shard directory (shard_*.npz), a release-layout CSV file, or a folder holding data.csv.
+
+    `background` overrides the no-contact frame (a path or an RGB uint8 array); see CsvSource for the
+    order in which a CSV's background is otherwise found.
+    """
+    path = Path(path)
+    if path.is_dir():
+        if any(path.glob(SHARD_GLOB)):
+            return ShardSource(path, background=background)
+        if (path / CSV_NAME).is_file():
+            return CsvSource(path / CSV_NAME, background=background)
+        raise DataError(f"{path}: no {SHARD_GLOB} shards and no {CSV_NAME}; not a split")
+    if path.suffix.lower() == ".csv":
+        return CsvSource(path, background=background)
+    raise DataError(f"{path}: not a split directory or a .csv file")
+
+
+def _background(background, default_path: Path | None, where: str) -> np.ndarray | None:
+    if isinstance(background, np.ndarray):
+        bg = background
+    elif background is not None:
+        bg = read_rgb(background, "background")
+    elif default_path is not None and default_path.is_file():
+        bg = read_rgb(default_path, "background")
+    else:
+        return None
+    if bg.dtype != np.uint8 or bg.ndim != 3 or bg.shape[2] != 3:
+        raise DataError(f"{where}: background must be uint8 HxWx3, got {bg.dtype} {bg.shape}")
+    return bg
+
+
+class ShardSource:
+    """A directory of `shard_#####.npz` files (image, depth, force, shape, meta) plus background.png.
+
+    Shards are decompressed whole and kept in an LRU cache of `cache_bytes`; a small split therefore
+    lives in memory after the first pass, a large one is best read shard-sequentially (read_range).
+    """
+
+    def __init__(self, path, background=None, cache_bytes: int = 4 << 30):
+        self.path = Path(path)
+        self.files = sorted(self.path.glob(SHARD_GLOB))
+        if not self.files:
+            raise DataError(f"{self.path}: no {SHARD_GLOB} files")
+        self.info = {}
+        if (self.path / "split.json").is_file():
+            self.info = json.loads((self.path / "split.json").read_text())
+        counts = self.info.get("shard_counts")
+        if counts is None or len(counts) != len(self.files):
+            counts = [len(self._load_member(f, "force")) for f in self.files]
+        self.offsets = np.concatenate([[0], np.cumsum(counts)]).astype(int).tolist()
+        self.background = _background(background, self.path / BACKGROUND_NAME, str(self.path))
+        if self.background is None:
+            raise DataError(f"{self.path}: missing {BACKGROUND_NAME} (or pass background=...)")
+        self.cache_bytes = cache_bytes
+        self._cache: OrderedDict[int, dict] = OrderedDict()
+
+    def __len__(self) -> int:
+        return self.offsets[-1]
+
+    def __getstate__(self):  # workers start with an empty cache instead of a pickled copy
+        return {**self.__dict__, "_cache": OrderedDict()}
+
+    @staticmethod
+    def _load_member(file: Path, key: str) -> np.ndarray:
+        try:
+            with np.load(file, allow_pickle=False) as z:
+                return z[key]
+        except KeyError as e:
+            raise DataError(f"{file}: no array {key!r}") from e
+        except Exception as e:  # zipfile / zlib errors: a truncated or corrupt shard
+            raise DataError(f"{file}: unreadable shard ({e})") from e
+
+    def _shard(self, k: int) -> dict:
+        if k in self._cache:
+            self._cache.move_to_end(k)
+            return self._cache[k]
+        file = self.files[k]
+        try:
+            with np.load(file, allow_pickle=False) as z:
+                arrays = {key: z[key] for key in ("image", "depth", "force")}
+        except KeyError as e:
+            raise DataError(f"{file}: shard lacks array {e}") from e
+        except Exception as e:
+            raise DataError(f"{file}: unreadable shard ({e})") from e
+        n = self.offsets[k + 1] - self.offsets[k]
+        img = arrays["image"]
+        if img.shape[0] != n or img.shape[1:] != self.background.shape:
+            raise DataError(f"{file}: image array {img.shape} does not match {n} rows of background "
+                            f"{self.background.shape}")
+        if arrays["depth"].shape != img.shape[:3] or arrays["force"].shape != (n, 3):
+            raise DataError(f"{file}: depth {arrays['depth'].shape} / force {arrays['force'].shape} "
+                            f"do not match image {img.shape}")
+        self._cache[k] = arrays
+        while len(self._cache) > 1 and sum(a.nbytes for s in self._cache.values()
+                                           for a in s.values()) > self.cache_bytes:
+            self._cache.popitem(last=False)
+        return arrays
+
+    def _locate(self, index: int) -> tuple[int, int]:
+        if not 0 <= index < len(self):
+            raise IndexError(f"index {index} out of range for {self.path} ({len(self)} records)")
+        k = bisect.bisect_right(self.offsets, index) - 1
+        return k, index - self.offsets[k]
+
+    def __getitem__(self, index) -> dict:
+        k, row = self._locate(int(index))
+        s = self._shard(k)
+        return {"image": s["image"][row], "background": self.background, "depth": s["depth"][row],
+                "force": s["force"][row]}
+
+    def read_range(self, start: int = 0, stop: int | None = None) -> dict:
+        """Stacked image/depth/force for records [start, stop), read shard by shard."""
+        stop = len(self) if stop is None else min(stop, len(self))
+        parts = []
+        for k in range(len(self.files)):
+            lo, hi = max(start, self.offsets[k]), min(stop, self.offsets[k + 1])
+            if lo < hi:
+                s = self._shard(k)
+                parts.append({key: a[lo - self.offsets[k]: hi - self.offsets[k]] for key, a in s.items()})
+        if not parts:
+            h, w = self.background.shape[:2]
+            return {"image": np.zeros((0, h, w, 3), np.uint8), "depth": np.zeros((0, h, w), np.float32),
+                    "force": np.zeros((0, 3), np.float32)}
+        return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+
+    def column(self, key: str) -> np.ndarray:
+        """One per-sample array over the whole split (force, shape, or any meta array) without images."""
+        return np.concatenate([self._load_member(f, key) for f in self.files])
+
+    @property
+    def forces(self) -> np.ndarray:
+        return self.column("force").astype(np.float32)
+
+    def __repr__(self) -> str:
+        return f"ShardSource({str(self.path)!r}, n={len(self)})"
+
+
+def parse_ft(cell: str, where: str) -> np.ndarray:
+    """Parse an FT cell: 6 ("Fx Fy Fz Tx Ty Tz", the release) or 3 numbers; returns the force (3,)."""
+    parts = str(cell).replace(",", " ").split()
+    if len(parts) not in (3, 6):
+        raise DataError(f"{where}: FT cell {cell!r} has {len(parts)} values, "
+                        f"expected 6 (Fx Fy Fz Tx Ty Tz) or 3")
+    try:
+        values = [float(p) for p in parts]
+    except ValueError as e:
+        raise DataError(f"{where}: FT cell {cell!r} is not numeric") from e
+    if not all(math.isfinite(v) for v in values):
+        raise DataError(f"{where}: FT cell {cell!r} contains NaN or inf")
+    return np.asarray(values[:3], np.float32)
+
+
+class CsvSource:
+    """The FeelAnyForce release layout: a CSV with `tactile` (image path), optional `depth` (.npy, mm)
+    and `FT` ("Fx Fy Fz Tx Ty Tz") columns; paths are relative to the CSV's folder (absolute ones work too).
+
+    The no-contact background is, in this order: the `background` argument (path or RGB array), a
+    per-row `background` column (path; images are cached), or `background.png` beside the CSV.
+    FT cells are all parsed on open; images are read (and checked) when a record is read.
+    """
+
+    def __init__(self, csv_path, background=None):
+        self.csv_path = Path(csv_path)
+        self.root = self.csv_path.parent
+        if not self.csv_path.is_file():
+            raise DataError(f"missing CSV: {self.csv_path}")
+        with open(self.csv_path, newline="") as f:
+            reader = csv.DictReader(f)
+            columns = [c.strip() for c in (reader.fieldnames or [])]
+            rows = [{k.strip(): (v or "").strip() for k, v in r.items() if k is not None} for r in reader]
+        missing = [c for c in ("tactile", "FT") if c not in columns]
+        if missing:
+            raise DataError(f"{self.csv_path}: missing column(s) {missing}; found {columns}")
+        self.has_depth = "depth" in columns
+        self._bg_column = "background" in columns and background is None
+        self.tactile = [r["tactile"] for r in rows]
+        self.depth_paths = [r.get("depth", "") for r in rows]
+        self.bg_paths = [r.get("background", "") for r in rows]
+        self.forces = np.stack([parse_ft(r["FT"], self._where(i)) for i, r in enumerate(rows)]) \
+            if rows else np.zeros((0, 3), np.float32)
+        for i, p in enumerate(self.tactile):
+            if not p:
+                raise DataError(f"{self._where(i)}: empty tactile path")
+        self.background = None
+        if not self._bg_column:
+            self.background = _background(background, self.root / BACKGROUND_NAME, str(self.csv_path))
+            if self.background is None:
+                raise DataError(f"{self.csv_path}: no background: pass background=..., add a 'background' "
+                                f"column, or put {BACKGROUND_NAME} beside the CSV")
+        self._bg_cache: dict[str, np.ndarray] = {}
+
+    def _where(self, i: int) -> str:
+        return f"{self.csv_path} row {i} (line {i + 2})"
+
+    def _resolve(self, p: str) -> Path:
+        q = Path(p)
+        return q if q.is_absolute() else self.root / q
+
+    def __len__(self) -> int:
+        return len(self.tactile)
+
+    def _row_background(self, i: int) -> np.ndarray:
+        if self.background is not None:
+            return self.background
+        p = self.bg_paths[i]
+        if not p:
+            raise DataError(f"{self._where(i)}: empty background cell")
+        if p not in self._bg_cache:
+            self._bg_cache[p] = _background(self._resolve(p), None, self._where(i))
+        return self._bg_cache[p]
+
+    def __getitem__(self, index) -> dict:
+        i = int(index)
+        if not 0 <= i < len(self):
+            raise IndexError(f"index {i} out of range for {self.csv_path} ({len(self)} rows)")
+        where = self._where(i)
+        try:
+            image = read_rgb(self._resolve(self.tactile[i]), "tactile image")
+        except DataError as e:
+            raise DataError(f"{where}: {e}") from None
+        background = self._row_background(i)
+        if image.shape != background.shape:
+            raise DataError(f"{where}: image {self.tactile[i]} is {image.shape}, "
+                            f"background is {background.shape}")
+        h, w = image.shape[:2]
+        if self.has_depth and self.depth_paths[i]:
+            dpath = self._resolve(self.depth_paths[i])
+            try:
+                depth = np.load(dpath, allow_pickle=False)
+            except FileNotFoundError:
+                raise DataError(f"{where}: missing depth file {dpath}") from None
+            except Exception as e:
+                raise DataError(f"{where}: unreadable depth file {dpath} ({e})") from None
+            depth = np.squeeze(depth)
+            if depth.shape != (h, w):
+                raise DataError(f"{where}: depth {dpath} is {depth.shape}, image is {(h, w)}")
+            depth = depth.astype(np.float32)
+        else:
+            depth = np.zeros((h, w), np.float32)
+        return {"image": image, "background": background, "depth": depth, "force": self.forces[i]}
+
+    def read_range(self, start: int = 0, stop: int | None = None) -> dict:
+        stop = len(self) if stop is None else min(stop, len(self))
+        recs = [self[i] for i in range(start, stop)]
+        if not recs:
+            return {"image": np.zeros((0, 1, 1, 3), np.uint8), "depth": np.zeros((0, 1, 1), np.float32),
+                    "force": np.zeros((0, 3), np.float32)}
+        out = {k: np.stack([r[k] for r in recs]) for k in ("image", "depth", "force")}
+        if self._bg_column:  # per-row backgrounds: keep them so batched preprocessing can use them
+            out["background"] = np.stack([r["background"] for r in recs])
+        return out
+
+    def __repr__(self) -> str:
+        return f"CsvSource({str(self.csv_path)!r}, n={len(self)})"

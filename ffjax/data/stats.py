@@ -1,0 +1,86 @@
+"""Train-set statistics: image normalization, depth range, force range (for the metric)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ffjax.data.preprocess import to_unit
+
+
+@dataclasses.dataclass(frozen=True)
+class Stats:
+    """mean/std: per channel of the model input before normalization (bg-subtracted, padded, resized, /255);
+    depth_min/depth_max: the depth normalization range in mm, eps already applied (train min - eps,
+    max + eps); force_min/force_max: per-axis label range in newtons; count: records the stats saw."""
+
+    mean: tuple[float, float, float]
+    std: tuple[float, float, float]
+    depth_min: float
+    depth_max: float
+    force_min: tuple[float, float, float]
+    force_max: tuple[float, float, float]
+    input_size: int
+    depth_eps: float = 0.0
+    count: int = 0
+
+    @classmethod
+    def compute(cls, source, data_cfg: dict, input_size: int | None = None, max_samples: int | None = 20000,
+                chunk: int = 512) -> Stats:
+        """Statistics over `source` (the train split). Image mean/std and the depth range use up to
+        `max_samples` evenly spaced records (all of them for CPU-scale splits); the force range uses all."""
+        size = int(input_size or data_cfg["input_size"])
+        eps = float(data_cfg.get("depth_eps", 0.0))
+        n = len(source)
+        if n == 0:
+            raise ValueError(f"cannot compute statistics over an empty split ({source!r})")
+        take = n if max_samples is None or n <= max_samples else max_samples
+        s1, s2 = np.zeros(3), np.zeros(3)
+        pixels = 0
+        dmin, dmax = np.inf, -np.inf
+        if take == n:  # contiguous chunks: the shard fast path
+            chunks = ((i, min(i + chunk, n)) for i in range(0, n, chunk))
+            batches = (source.read_range(a, b) for a, b in chunks)
+        else:
+            idx = np.linspace(0, n - 1, take).round().astype(int)
+            batches = (_stack([source[int(i)] for i in idx[a: a + chunk]]) for a in range(0, take, chunk))
+        for b in batches:
+            x = to_unit(b["image"], b.get("background", source_background(source)), size).astype(np.float64)
+            s1 += x.sum(axis=(0, 1, 2))
+            s2 += (x * x).sum(axis=(0, 1, 2))
+            pixels += x.shape[0] * x.shape[1] * x.shape[2]
+            dmin, dmax = min(dmin, float(b["depth"].min())), max(dmax, float(b["depth"].max()))
+        mean = s1 / pixels
+        std = np.sqrt(np.maximum(s2 / pixels - mean**2, 1e-12))
+        forces = np.asarray(source.forces, np.float32)
+        return cls(mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std),
+                   depth_min=dmin - eps, depth_max=dmax + eps,
+                   force_min=tuple(float(v) for v in forces.min(0)),
+                   force_max=tuple(float(v) for v in forces.max(0)),
+                   input_size=size, depth_eps=eps, count=n)
+
+    def to_dict(self) -> dict:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Stats:
+        fields = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - fields
+        if unknown:
+            raise ValueError(f"unknown Stats keys {sorted(unknown)}")
+        return cls(**{k: tuple(float(x) for x in v) if isinstance(v, (list, tuple)) else v
+                      for k, v in d.items()})
+
+    @property
+    def force_range(self) -> np.ndarray:
+        """max - min per axis (the metric's normalizer)."""
+        return np.asarray(self.force_max, np.float32) - np.asarray(self.force_min, np.float32)
+
+
+def source_background(source):
+    return getattr(source, "background", None)
+
+
+def _stack(records: list[dict]) -> dict:
+    return {k: np.stack([r[k] for r in records]) for k in ("image", "background", "depth", "force")}

@@ -1,0 +1,372 @@
+"""Balanced presses on disk: every split the paper's tables need, as npz shards.
+
+    python -m ffjax.sim.dataset --preset quick --out DIR [--force] [--workers N] [--set data.x=y]
+
+Layout: DIR/config.json (what was asked, written first), DIR/<split>/shard_#####.npz (image uint8
+(N,H,W,3), depth float32 (N,H,W) mm, force float32 (N,3), shape (N,) str, per-sample pose and sim
+meta), DIR/<split>/background.png, DIR/<split>/split.json, DIR/manifest.json (written last).
+
+Sampling, as the paper's data collection: per shape, Fz is stratified over [fz_min, fz_max] (one
+sample per equal-width bin, shuffled) so each shape's Fz histogram is flat; x, y uniform in a safe
+region that keeps the shape's 15 N footprint on the pad; yaw uniform; roll/pitch uniform within
++-tilt_max_deg. The robot presses along its tilted tool axis, so the shear is Fz * tan(tilt) plus
+noise (robot compliance, friction), clipped to +-shear_max; the simulator caps it at mu * Fz.
+
+Deterministic from cfg["seed"]: every split has its own random stream and its own block of render
+seeds (train, val and test seeds are disjoint). Each shard is written atomically and skipped when
+present, so a killed run resumes; a different config refuses to touch DIR unless force=True.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import dataclasses
+import functools
+import io
+import json
+import multiprocessing
+import os
+import shutil
+import sys
+import time
+import warnings
+import zipfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+VERSION = 1
+# Generation knobs (cfg["data"]); the last three have defaults here so presets need not list them.
+GEN_KEYS = ("render_size", "train_per_indenter", "val_per_indenter", "unseen_per_object",
+            "sensor_test_per_indenter", "calib_samples", "fz_max", "shear_max", "shard_size")
+DEFAULTS = {"fz_min": 0.05, "tilt_max_deg": 7.0, "shear_noise": 0.06}
+CALIB_SHAPE = "sphere_big"
+MINI_KEYS = tuple(f"mini-{u}-gel{g}" for u in (1, 2, 3) for g in (1, 2, 3))
+SENSOR_KEYS = MINI_KEYS + ("digit",)
+# Shards are stored uncompressed: camera noise and the smooth depth tails left deflate at ~0.9 of the
+# size for 5x the write time, and stored members load faster.
+COMPRESS = False
+_OURS = ("config.json", "manifest.json", "train", "val", "unseen", "sensor", "calib")
+
+
+@dataclasses.dataclass(frozen=True)
+class SplitSpec:
+    name: str  # "train", "unseen/banana", "sensor/mini-2-gel3", "calib/digit", ...
+    sensor: str  # a sensor key: "mini-1-gel1" .. "mini-3-gel3", "digit"
+    shapes: tuple[str, ...]
+    per_shape: int
+    index: int  # fixed position in the list of all splits: selects the random stream and seed block
+
+    @property
+    def count(self) -> int:
+        return self.per_shape * len(self.shapes)
+
+
+def split_dir(root, kind: str, name: str | None = None) -> Path:
+    """Folder of a split: split_dir(DIR, "train"), split_dir(DIR, "unseen", "banana"),
+    split_dir(DIR, "sensor", "mini-2-gel1"), split_dir(DIR, "calib", "digit")."""
+    return Path(root) / kind if name is None else Path(root) / kind / name
+
+
+def split_specs(cfg: dict) -> list[SplitSpec]:
+    """All splits of a config, in a fixed order (the order sets each split's seeds)."""
+    from ffjax import sim
+
+    d = cfg["data"]
+    ind = tuple(sim.INDENTERS)
+    table2 = tuple(s for s in ind if s != CALIB_SHAPE)
+    specs = [("train", "mini-1-gel1", ind, d["train_per_indenter"]),
+             ("val", "mini-1-gel1", ind, d["val_per_indenter"])]
+    specs += [(f"unseen/{o}", "mini-1-gel1", (o,), d["unseen_per_object"]) for o in sim.UNSEEN_OBJECTS]
+    specs += [(f"sensor/{k}", k, table2, d["sensor_test_per_indenter"]) for k in SENSOR_KEYS]
+    specs += [(f"calib/{k}", k, (CALIB_SHAPE,), d["calib_samples"]) for k in SENSOR_KEYS]
+    return [SplitSpec(n, s, sh, int(p), i) for i, (n, s, sh, p) in enumerate(specs)]
+
+
+def gen_config(cfg: dict) -> dict:
+    """What determines the bytes on disk (JSON-normalized): compared on every rerun."""
+    d = cfg["data"]
+    data = {k: d[k] for k in GEN_KEYS} | {k: d.get(k, v) for k, v in DEFAULTS.items()}
+    return json.loads(json.dumps({"version": VERSION, "seed": int(cfg["seed"]), "data": data}))
+
+
+def sim_fingerprint() -> str:
+    """Hash of the simulator's source: recorded in the manifest, warned about (not enforced) on reuse."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for f in sorted(Path(__file__).parent.glob("*.py")):
+        h.update(f.name.encode() + f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _sensor(key: str):
+    from ffjax import sim
+
+    return sim.get_sensor(key)
+
+
+def render_size(sensor, size) -> tuple[int, int]:
+    """cfg render_size is landscape (H < W); portrait sensors (DIGIT) render it transposed."""
+    h, w = sorted(int(s) for s in size)
+    return (w, h) if sensor.native_size[0] > sensor.native_size[1] else (h, w)
+
+
+@functools.lru_cache(maxsize=256)
+def safe_region(shape_name: str, sensor_key: str, fz_max: float) -> tuple[float, float]:
+    """Half-ranges (x, y) in mm for the pose offset: the shape's footprint at fz_max stays on the pad
+    (0.9 of it), but never less than a fifth of the half pad (large objects overhang anyway)."""
+    from ffjax import sim
+
+    shape, sensor = sim.get_shape(shape_name), _sensor(sensor_key)
+    try:
+        pen = sim.press(shape, sensor, (0.0, 0.0, fz_max), size=(24, 32), noise=False).meta["penetration_mm"]
+    except ValueError:  # the gel cannot take fz_max centred: use the deepest press it allows
+        pen = 0.9 * sensor.gel.thickness_mm
+    H, W = shape.height.shape
+    yy, xx = np.nonzero(shape.height < pen)
+    r = float(np.hypot(xx - (W - 1) / 2, yy - (H - 1) / 2).max()) * shape.mm_per_px
+    fh, fw = sensor.fov_mm
+    return max(0.2 * fw / 2, 0.9 * fw / 2 - r), max(0.2 * fh / 2, 0.9 * fh / 2 - r)
+
+
+def sample_presses(spec: SplitSpec, cfg: dict) -> dict:
+    """Forces and poses of every press of a split, in the (shuffled) order they are stored."""
+    g = gen_config(cfg)
+    d, seed = g["data"], g["seed"]
+    parts = []
+    for si, name in enumerate(spec.shapes):
+        n = spec.per_shape
+        rng = np.random.default_rng([seed, spec.index, si, VERSION])
+        fz = d["fz_min"] + (d["fz_max"] - d["fz_min"]) * (rng.permutation(n) + rng.random(n)) / n
+        rx, ry = safe_region(name, spec.sensor, d["fz_max"])
+        x, y = rng.uniform(-rx, rx, n), rng.uniform(-ry, ry, n)
+        yaw = rng.uniform(-180.0, 180.0, n)
+        tilt = rng.uniform(-d["tilt_max_deg"], d["tilt_max_deg"], (n, 2))
+        # pushing along the tilted tool axis: the tangential part is Fz * tan(tilt), plus noise
+        base, spread = fz[:, None] * np.tan(np.radians(tilt)), d["shear_noise"] * fz[:, None]
+        ft = base + rng.normal(0, 1, (n, 2)) * spread
+        for _ in range(20):  # redraw (truncate) rather than clip: no pile-up at +-shear_max
+            out = np.abs(ft) > d["shear_max"]
+            if not out.any():
+                break
+            ft[out] = (base + rng.normal(0, 1, (n, 2)) * spread)[out]
+        ft = np.clip(ft, -d["shear_max"], d["shear_max"])
+        parts.append({"shape_index": np.full(n, si), "force": np.column_stack([ft, fz]), "x_mm": x, "y_mm": y,
+                      "yaw_deg": yaw, "tilt_deg": tilt})
+    p = {k: np.concatenate([q[k] for q in parts]) for k in parts[0]}
+    order = np.random.default_rng([seed, spec.index, 10**6, VERSION]).permutation(len(p["x_mm"]))
+    p = {k: v[order] for k, v in p.items()}
+    # a block of 2**24 render seeds per split and config seed: disjoint across splits
+    p["seed"] = (seed * 4096 + spec.index) * 2**24 + np.arange(len(order), dtype=np.int64)
+    return p
+
+
+def _press_safe(sim, shape, sensor, f, x, y, yaw, tilt, seed, size):
+    """One press; a pose the simulator refuses is pulled towards the centre (then untilted), so the
+    requested Fz is always honoured. Deterministic."""
+    for k in range(4):
+        scale = 0.5**k
+        t = tilt if k < 3 else (0.0, 0.0)
+        try:
+            return sim.press(shape, sensor, f, x * scale, y * scale, yaw, t, int(seed), size)
+        except ValueError:
+            if k == 3:
+                raise
+    raise AssertionError("unreachable")
+
+
+def render_shard(spec: SplitSpec, p: dict, lo: int, hi: int, size) -> dict:
+    """Render presses [lo, hi) of a split (already sampled): the shard's arrays."""
+    from ffjax import sim
+
+    sensor = _sensor(spec.sensor)
+    size = render_size(sensor, size)
+    n = hi - lo
+    H, W = size
+    out = {"image": np.empty((n, H, W, 3), np.uint8), "depth": np.empty((n, H, W), np.float32),
+           "force": np.empty((n, 3), np.float32)}
+    meta = {k: np.empty(n) for k in ("x_mm", "y_mm", "yaw_deg", "penetration_mm", "contact_area_mm2")}
+    meta |= {"tilt_deg": np.empty((n, 2)), "requested_force": np.empty((n, 3)),
+             "shear_disp_mm": np.empty((n, 2)), "slip": np.empty(n, bool)}
+    sl = slice(lo, hi)
+    idx_all = p["shape_index"][sl]
+    for si in np.unique(idx_all):
+        rows = np.nonzero(idx_all == si)[0]
+        q = {k: v[sl][rows] for k, v in p.items()}
+        shape = spec.shapes[si]
+        try:
+            b = sim.press_batch(shape, sensor, q["force"], q["x_mm"], q["y_mm"], q["yaw_deg"], q["tilt_deg"],
+                                q["seed"], size)
+        except ValueError:  # some pose was refused: press one by one, pulling refused poses inwards
+            smp = [_press_safe(sim, shape, sensor, q["force"][j], q["x_mm"][j], q["y_mm"][j], q["yaw_deg"][j],
+                               tuple(q["tilt_deg"][j]), q["seed"][j], size) for j in range(len(rows))]
+            b = {"image": np.stack([s.image for s in smp]), "depth": np.stack([s.depth for s in smp]),
+                 "force": np.stack([s.force for s in smp]), "meta": [s.meta for s in smp]}
+        out["image"][rows], out["depth"][rows], out["force"][rows] = b["image"], b["depth"], b["force"]
+        for j, m in zip(rows, b["meta"]):
+            for k in meta:
+                meta[k][j] = m[k]
+    out |= {k: v.astype(np.float32) if v.dtype == np.float64 else v for k, v in meta.items()}
+    out["shape"] = np.array([spec.shapes[i] for i in idx_all])
+    out["seed"] = p["seed"][sl].astype(np.int64)
+    return out
+
+
+def save_npz(path, arrays: dict, compress: bool = COMPRESS) -> None:
+    """np.savez(_compressed), but byte-reproducible (fixed zip timestamps) and atomic (tmp + os.replace)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    with zipfile.ZipFile(tmp, "w", method, allowZip64=True) as zf:
+        for key, arr in arrays.items():
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.asarray(arr), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = method
+            zf.writestr(info, buf.getvalue())
+    os.replace(tmp, path)
+
+
+def _write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _shard_task(args) -> int:
+    spec, p, lo, hi, size, path = args
+    cv2.setNumThreads(1)  # one process per core already
+    save_npz(path, render_shard(spec, p, lo, hi, size))
+    return hi - lo
+
+
+def _prepare(out: Path, g: dict, force: bool) -> None:
+    cfg_file = out / "config.json"
+    if cfg_file.is_file():
+        old = json.loads(cfg_file.read_text())
+        manifest = out / "manifest.json"
+        stale_sim = manifest.is_file() and json.loads(manifest.read_text()).get("sim_fingerprint") \
+            != sim_fingerprint()
+        if old == g and not (force and stale_sim):  # force regenerates a same-config set made by another sim
+            return
+        if not force:
+            diff = sorted(k for k in set(old.get("data", {})) | set(g["data"])
+                          if old.get("data", {}).get(k) != g["data"].get(k))
+            diff += [k for k in ("version", "seed") if old.get(k) != g[k]]
+            raise FileExistsError(f"{out} holds a dataset generated with a different config (differs in: "
+                                  f"{', '.join(diff)}); pass --force (force=True) to delete and regenerate "
+                                  f"it, or choose another --out")
+    elif out.is_dir() and any(out.iterdir()) and not force:
+        raise FileExistsError(f"{out} is not empty and holds no dataset config.json; pass --force to write "
+                              f"into it anyway (only this tool's files are ever deleted), or choose another "
+                              f"--out")
+    for name in _OURS:  # only what this tool writes
+        target = out / name
+        if target.is_dir():
+            shutil.rmtree(target)
+        elif target.exists():
+            target.unlink()
+    out.mkdir(parents=True, exist_ok=True)
+    _write_text(cfg_file, json.dumps(g, indent=1))
+
+
+def generate(cfg: dict, out, force: bool = False, workers: int | None = None, progress: bool = True) -> dict:
+    """Write (or finish, or reuse) every split of `cfg` under `out`; returns the manifest dict."""
+    from ffjax import sim
+    from ffjax.data.sources import write_rgb
+
+    out = Path(out)
+    g = gen_config(cfg)
+    _prepare(out, g, force)
+    specs = split_specs(cfg)
+    size, shard = tuple(g["data"]["render_size"]), int(g["data"]["shard_size"])
+    tasks, splits, total = [], {}, 0
+    for spec in specs:
+        folder = out / spec.name
+        folder.mkdir(parents=True, exist_ok=True)
+        for stale in folder.glob(".*.tmp*"):  # leftovers of a killed run
+            stale.unlink()
+        bounds = [(a, min(a + shard, spec.count)) for a in range(0, spec.count, shard)]
+        sensor = _sensor(spec.sensor)
+        info = {"name": spec.name, "sensor": spec.sensor, "sensor_name": sensor.name, "gel": sensor.gel_id,
+                "shapes": list(spec.shapes), "per_shape": spec.per_shape, "count": spec.count,
+                "shard_counts": [b - a for a, b in bounds], "render_size": list(render_size(sensor, size)),
+                "seed": g["seed"], "seed_block": spec.index}
+        splits[spec.name] = info
+        total += spec.count
+        todo = [(k, a, b) for k, (a, b) in enumerate(bounds) if not (folder / f"shard_{k:05d}.npz").is_file()]
+        if not (folder / "split.json").is_file():
+            _write_text(folder / "split.json", json.dumps(info, indent=1))
+        if not (folder / "background.png").is_file():
+            write_rgb(folder / "background.png", sensor.background(render_size(sensor, size)))
+        if todo:
+            p = sample_presses(spec, cfg)
+            tasks += [(spec, {k: v[a:b] for k, v in p.items()}, 0, b - a, size, folder / f"shard_{k:05d}.npz")
+                      for k, a, b in todo]
+    manifest_file = out / "manifest.json"
+    if not tasks and manifest_file.is_file():
+        manifest = json.loads(manifest_file.read_text())
+        if manifest.get("sim_fingerprint") != sim_fingerprint():
+            warnings.warn(f"{out} was generated by another version of ffjax/sim; reusing it anyway (same "
+                          f"config). Delete it or pass --force to regenerate with the current simulator.",
+                          stacklevel=2)
+        return manifest
+    if manifest_file.is_file():
+        manifest_file.unlink()  # incomplete again until every shard is back
+    todo_n = sum(t[3] for t in tasks)
+    if workers is None:  # starting processes costs ~2 s: not worth it for a few thousand presses
+        workers = 1 if todo_n < 2000 else min(os.cpu_count() or 1, 8)
+    workers = max(1, min(workers, len(tasks)))
+    t0 = time.perf_counter()
+    with tqdm(total=total, initial=total - todo_n, unit="press", desc=f"dataset {out.name}",
+              disable=not progress, smoothing=0.1) as bar:
+        if workers <= 1:
+            for t in tasks:
+                bar.update(_shard_task(t))
+        else:
+            ctx = multiprocessing.get_context("spawn")  # safe even if the caller already started jax threads
+            with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+                for n in (f.result() for f in cf.as_completed([pool.submit(_shard_task, t) for t in tasks])):
+                    bar.update(n)
+    seconds = time.perf_counter() - t0
+    manifest = {"version": VERSION, "preset": cfg.get("preset"), "seed": g["seed"], "config": g,
+                "data_config": json.loads(json.dumps(cfg["data"])), "splits": splits,
+                "sim_fingerprint": sim_fingerprint(),
+                "sim": {"sensors": list(SENSOR_KEYS), "indenters": list(sim.INDENTERS),
+                        "unseen_objects": list(sim.UNSEEN_OBJECTS)},
+                "generation": {"samples": total, "rendered": todo_n, "seconds": round(seconds, 2),
+                               "samples_per_minute": round(todo_n / max(seconds, 1e-9) * 60),
+                               "workers": workers}}
+    _write_text(manifest_file, json.dumps(manifest, indent=1))
+    return manifest
+
+
+def main(argv=None):
+    import configs
+
+    ap = argparse.ArgumentParser(description="Write every synthetic split (train/val/unseen/sensor/calib).")
+    ap.add_argument("--preset", default="quick", choices=configs.PRESETS)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--force", action="store_true", help="delete a dataset made with another config")
+    ap.add_argument("--workers", type=int, default=None, help="processes (default: CPU count, max 8)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override, e.g. "
+                    "data.train_per_indenter=100")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    cfg = configs.get(args.preset, dict(configs.parse_override(s) for s in args.set))
+    try:
+        m = generate(cfg, args.out, force=args.force, workers=args.workers, progress=not args.quiet)
+    except FileExistsError as e:
+        sys.exit(f"error: {e}")
+    gen = m["generation"]
+    print(f"{args.out}: {len(m['splits'])} splits, {gen['samples']} presses "
+          f"({gen['rendered']} rendered in {gen['seconds']} s, {gen['samples_per_minute']:,}/min, "
+          f"{gen['workers']} workers)")
+
+
+if __name__ == "__main__":
+    main()

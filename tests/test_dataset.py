@@ -1,0 +1,108 @@
+"""ffjax.sim.dataset on the smoke preset: layout, balance, determinism, resume, config guard."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import configs
+from ffjax import data, sim
+from ffjax.data import csv_layout
+from ffjax.sim import dataset
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return configs.get("smoke")
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory, cfg):
+    out = tmp_path_factory.mktemp("ds") / "smoke"
+    dataset.generate(cfg, out, workers=1, progress=False)
+    return out
+
+
+def _files(root: Path) -> dict:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and p.name != "manifest.json"}
+
+
+def test_layout_and_labels(root, cfg):
+    m = json.loads((root / "manifest.json").read_text())
+    d = cfg["data"]
+    want = {"train", "val"} | {f"unseen/{o}" for o in sim.UNSEEN_OBJECTS} \
+        | {f"sensor/{k}" for k in dataset.SENSOR_KEYS} | {f"calib/{k}" for k in dataset.SENSOR_KEYS}
+    assert set(m["splits"]) == want and len(want) == 32
+    assert m["splits"]["train"]["count"] == 10 * d["train_per_indenter"]
+    assert "sphere_big" not in m["splits"]["sensor/digit"]["shapes"]
+    assert m["splits"]["calib/mini-2-gel1"]["shapes"] == ["sphere_big"]
+    src = data.open_split(dataset.split_dir(root, "sensor", "digit"))
+    rec = src[0]
+    h, w = d["render_size"]
+    assert rec["image"].shape == (w, h, 3) and rec["image"].dtype == np.uint8  # DIGIT is portrait
+    assert rec["depth"].shape == (w, h) and rec["depth"].dtype == np.float32
+    np.testing.assert_array_equal(rec["background"], sim.get_sensor("digit").background((w, h)))
+    train = data.open_split(dataset.split_dir(root, "train"))
+    f = train.forces
+    assert f.dtype == np.float32 and np.all(f[:, 2] > 0) and np.all(f[:, 2] <= d["fz_max"])
+    assert np.all(np.abs(f[:, :2]) <= d["shear_max"] + 1e-6)
+    np.testing.assert_allclose(f[:, 2], train.column("requested_force")[:, 2], rtol=1e-6)
+    # shear follows the tool tilt (pressing along a tilted axis)
+    assert np.corrcoef(np.tan(np.radians(train.column("tilt_deg")[:, 0])) * f[:, 2], f[:, 0])[0, 1] > 0.5
+
+
+def test_fz_histogram_near_uniform_per_indenter(root, cfg):
+    d = cfg["data"]
+    train = data.open_split(dataset.split_dir(root, "train"))
+    shapes, fz = train.column("shape"), train.forces[:, 2]
+    for name in sim.INDENTERS:
+        counts, _ = np.histogram(fz[shapes == name], bins=4, range=(0.05, d["fz_max"]))
+        assert counts.max() - counts.min() <= 1, (name, counts)
+
+
+def test_seeds_disjoint_across_splits(root):
+    seen = {}
+    for name in ("train", "val", "unseen/banana", "sensor/mini-1-gel1", "calib/digit"):
+        seeds = set(data.open_split(root / name).column("seed").tolist())
+        for other, s in seen.items():
+            assert not seeds & s, (name, other)
+        seen[name] = seeds
+
+
+def test_deterministic_resumable_and_guarded(root, cfg, tmp_path):
+    other = tmp_path / "again"
+    dataset.generate(cfg, other, workers=1, progress=False)
+    assert _files(other) == _files(root)  # same seed, same bytes
+    (other / "train" / "shard_00000.npz").unlink()
+    (other / "val" / ".shard_00000.npz.tmp123").write_bytes(b"partial")  # a killed run's leftover
+    m = dataset.generate(cfg, other, workers=1, progress=False)
+    assert m["generation"]["rendered"] == cfg["data"]["shard_size"]  # only the deleted shard
+    assert _files(other) == _files(root)
+    assert dataset.generate(cfg, other, progress=False) == m  # nothing to do: reused as is
+    changed = configs.get("smoke", {"seed": 1})
+    with pytest.raises(FileExistsError, match="differs in: seed"):
+        dataset.generate(changed, other, progress=False)
+    assert dataset.generate(changed, other, force=True, workers=1, progress=False)["seed"] == 1
+
+
+def test_csv_converter_round_trip(root, tmp_path):
+    split = dataset.split_dir(root, "unseen", "banana")
+    csv_layout.main(["--split", str(split), "--out", str(tmp_path / "banana")])
+    a, b = data.open_split(split), data.open_split(tmp_path / "banana" / "data.csv")
+    assert len(a) == len(b)
+    for i in range(len(a)):
+        ra, rb = a[i], b[i]
+        for k in ("image", "background", "depth", "force"):
+            np.testing.assert_array_equal(ra[k], rb[k])
+    header = (tmp_path / "banana" / "data.csv").read_text().splitlines()[:2]
+    assert header[0] == "tactile,depth,FT" and header[1].endswith(" 0 0 0")
+
+
+def test_refused_pose_is_pulled_inwards():
+    sensor = sim.get_sensor("mini-1")
+    x = 0.75 * sensor.fov_mm[1]  # off the pad: the simulator refuses it
+    s = dataset._press_safe(sim, sim.get_shape("cone"), sensor, (0.1, 0.0, 5.0), x, 0.0, 0.0, (1.0, 0.0), 3,
+                            (24, 32))
+    assert s.meta["x_mm"] == pytest.approx(x / 2) and s.force[2] == pytest.approx(5.0)
