@@ -1,0 +1,75 @@
+"""python -m ffjax.convert {dinov2,resnet18,feelanyforce} IN --out DIR [--heads N] [--depth-channel C]
+
+Writes DIR/variables.msgpack and DIR/convert.json (see ffjax.convert.store); prints a summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import jax
+import numpy as np
+
+from . import from_dinov2, from_release, from_torchvision, mapping, reader, store
+
+
+def _count(tree) -> int:
+    return int(sum(np.size(x) for x in jax.tree.leaves(tree)))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m ffjax.convert", description=__doc__.splitlines()[0])
+    p.add_argument("kind", choices=("dinov2", "resnet18", "feelanyforce"))
+    p.add_argument("input", help=".pth / .pth.tar / .pt (torch.save zip) or .safetensors")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--heads", type=int, default=None, help="ViT attention heads (default: from name, dim//64)")
+    p.add_argument("--prefix", default="", help="dinov2/resnet18: take only keys under this prefix")
+    p.add_argument(
+        "--depth-channel",
+        type=int,
+        default=0,
+        choices=(0, 1, 2),
+        help="feelanyforce: which of the release decoder's 3 output channels to keep",
+    )
+    p.add_argument("--no-decoder", action="store_true", help="feelanyforce: drop the depth decoder")
+    a = p.parse_args(argv)
+    try:
+        return _run(a)
+    except (mapping.ConversionError, reader.UnsafePickleError, ValueError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)  # every mapping problem is in the message: no traceback needed
+        return 2
+
+
+def _run(a: argparse.Namespace) -> int:
+    info = {}
+    if a.kind == "dinov2":
+        cfg, params = from_dinov2.dinov2(a.input, heads=a.heads, prefix=a.prefix)
+        model_cfg, variables = {"vit": cfg}, {"params": {"backbone": params}}
+    elif a.kind == "resnet18":
+        cfg, params, stats = from_torchvision.resnet18(a.input, prefix=a.prefix)
+        model_cfg = {"resnet": cfg}
+        variables = {"params": {"backbone": params}, "batch_stats": {"backbone": stats}}
+    else:
+        obj = reader.load(a.input)
+        model_cfg, variables, size = from_release.convert_state(
+            reader.state_dict(obj, a.input),
+            from_release.release_config(obj),
+            a.heads,
+            a.depth_channel,
+            not a.no_decoder,
+            a.input,
+        )
+        info = {
+            "input_size": size,
+            "depth_channel": a.depth_channel,
+            "notes": "release decoder has 3 output channels; depth_channel of them kept",
+        }
+    out = store.save(a.out, a.kind, model_cfg, variables, a.input, **info)
+    groups = {k: _count(v) for k, v in variables["params"].items()}
+    print(f"converted {a.input} -> {out}: " + ", ".join(f"{k} {n:,} params" for k, n in groups.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
