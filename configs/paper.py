@@ -16,8 +16,9 @@ CONFIG = {
         "depth_eps": 0.05,
     },
     "model": {
-        "vit": {"dim": 768, "depth": 12, "heads": 12, "patch": 14, "mlp_ratio": 4.0, "layerscale": 1e-5},
-        "resnet": {"widths": (64, 128, 256, 512), "blocks": (2, 2, 2, 2)},
+        "vit": {"dim": 768, "depth": 12, "heads": 12, "patch": 14, "mlp_ratio": 4.0, "layerscale": 1e-5,
+                "pos_grid": 37},
+        "resnet": {"widths": (64, 128, 256, 512), "blocks": (2, 2, 2, 2), "stem": "imagenet"},
         "regressor": {"widths": (512, 256, 128, 64)},
         "decoder": {"kind": "paper", "channels": (512, 256, 256, 128)},
     },

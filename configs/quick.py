@@ -20,8 +20,9 @@ CONFIG = {
         "depth_eps": 0.05,  # mm; the release's eps is 5 in its depth units
     },
     "model": {
-        "vit": {"dim": 128, "depth": 4, "heads": 4, "patch": 8, "mlp_ratio": 4.0, "layerscale": 1e-5},
-        "resnet": {"widths": (16, 32, 64, 128), "blocks": (2, 2, 2, 2)},
+        "vit": {"dim": 128, "depth": 4, "heads": 4, "patch": 8, "mlp_ratio": 4.0, "layerscale": 1e-5,
+                "pos_grid": None},
+        "resnet": {"widths": (16, 32, 64, 128), "blocks": (2, 2, 2, 2), "stem": "small"},
         "regressor": {"widths": (256, 128, 64, 32)},
         "decoder": {"kind": "tokens", "channels": (64, 32, 32, 16)},
     },

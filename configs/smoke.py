@@ -16,8 +16,9 @@ CONFIG = {
         "depth_eps": 0.05,
     },
     "model": {
-        "vit": {"dim": 32, "depth": 2, "heads": 2, "patch": 8, "mlp_ratio": 2.0, "layerscale": 1e-5},
-        "resnet": {"widths": (8, 16, 16, 32), "blocks": (1, 1, 1, 1)},
+        "vit": {"dim": 32, "depth": 2, "heads": 2, "patch": 8, "mlp_ratio": 2.0, "layerscale": 1e-5,
+                "pos_grid": None},
+        "resnet": {"widths": (8, 16, 16, 32), "blocks": (1, 1, 1, 1), "stem": "small"},
         "regressor": {"widths": (32, 16, 16, 8)},
         "decoder": {"kind": "tokens", "channels": (16, 8, 8, 8)},
     },

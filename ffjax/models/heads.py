@@ -1,0 +1,288 @@
+"""Force regressor and depth decoders (the release's "paper" decoder and a light "tokens" decoder).
+
+Flax path <- release (FeelAnyForce checkpoint) meaning; WeightNormDense holds v (in,out) = weight_v.T,
+g (out,) = weight_g[:, 0], bias:
+  regressor/fc_i, regressor/norm_i (i = 0..3), regressor/out      Linear+LayerNorm+GELU x4, Linear(->3)
+  decoder (paper):  decoder/fc (WeightNormDense D -> C0*(S/16)^2, reshaped channel-major like torch),
+                    decoder/conv_0..conv_3 (k5; kernel = torch weight.permute(2, 3, 1, 0))
+  decoder (tokens): decoder/proj (1x1 conv), decoder/up_0..up_{n-1} (Dense(4C) + pixel shuffle)
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+DECODER_KINDS = ("paper", "tokens")
+
+
+def _uniform(bound: float):
+    """U(-bound, bound), torch Linear's default init."""
+    return lambda key, shape, dtype=jnp.float32: jax.random.uniform(key, shape, dtype, -bound, bound)
+
+
+class WeightNormDense(nn.Module):
+    """Linear with torch weight_norm(dim=0): weight = g * v / ||v||, the norm over inputs per output unit.
+
+    g starts at ||v|| so the initial weight equals v (as torch does when it wraps a fresh Linear).
+    """
+
+    features: int
+    use_bias: bool = True
+
+    @nn.compact
+    def __call__(self, x):
+        fan_in = x.shape[-1]
+        bound = 1.0 / math.sqrt(fan_in)  # torch Linear default init range
+        v = self.param("v", _uniform(bound), (fan_in, self.features))
+        g = self.param("g", lambda _key: jnp.linalg.norm(v, axis=0))
+        w = v * (g / jnp.linalg.norm(v, axis=0))
+        y = x @ w.astype(x.dtype)
+        if self.use_bias:
+            y = y + self.param("bias", _uniform(bound), (self.features,))
+        return y
+
+
+class Regressor(nn.Module):
+    """feature (B,D) -> force (B,3) in newtons: 4 x (Linear + LayerNorm + GELU), then Linear "out".
+
+    The last LayerNorm is "norm_{len(widths)-1}" (norm_3 for 4 widths): calibration tunes it with "out".
+    """
+
+    widths: tuple[int, ...] = (512, 256, 128, 64)
+
+    @nn.compact
+    def __call__(self, x):
+        for i, w in enumerate(self.widths):
+            x = WeightNormDense(w, name=f"fc_{i}")(x)
+            x = nn.LayerNorm(1e-5, name=f"norm_{i}")(x)  # torch default eps
+            x = nn.gelu(x, approximate=False)
+        return WeightNormDense(3, name="out")(x)
+
+
+def upsample_nearest2(x):
+    """(B,H,W,C) -> (B,2H,2W,C), torch Upsample(scale_factor=2, mode="nearest")."""
+    b, h, w, c = x.shape
+    x = jnp.broadcast_to(x[:, :, None, :, None, :], (b, h, 2, w, 2, c))
+    return x.reshape(b, 2 * h, 2 * w, c)
+
+
+def depth_to_space2(x):
+    """(B,H,W,4C) -> (B,2H,2W,C): pixel shuffle by 2, a pure reshape/transpose."""
+    b, h, w, c4 = x.shape
+    c = c4 // 4
+    x = x.reshape(b, h, w, 2, 2, c).transpose(0, 1, 3, 2, 4, 5)
+    return x.reshape(b, 2 * h, 2 * w, c)
+
+
+def _fit(x, size: int):
+    """Resize a (B,H,W,1) map to (B,size,size,1) when the upsampling overshot (bilinear, antialiased)."""
+    if x.shape[1] == size and x.shape[2] == size:
+        return x
+    return jax.image.resize(x, (x.shape[0], size, size, x.shape[3]), "bilinear", antialias=True)
+
+
+# Nearest x2 then a k5 "same" conv reads, for output row phase a (0 even, 1 odd), low-res rows
+# i-1, i, i+1 with these sums of the 5 kernel rows (rows 2i+a-2 .. 2i+a+2 map to low rows floor(m/2)).
+_PHASE_TAPS = np.array(
+    [[[1, 1, 0, 0, 0], [0, 0, 1, 1, 0], [0, 0, 0, 0, 1]], [[1, 0, 0, 0, 0], [0, 1, 1, 0, 0], [0, 0, 0, 1, 1]]],
+    np.float32,
+)
+
+
+class UpConv5(nn.Module):
+    """torch Upsample(x2, nearest) + Conv2d(k5, pad 2), params as nn.Conv (kernel (5,5,Cin,Cout), bias).
+
+    fast=True computes the same function as a 3x3 conv at the low resolution with 4*Cout outputs (one per
+    output phase, kernels summed from the k5 taps) + pixel shuffle: 2.8x fewer FLOPs and no upsampled
+    input map. fast=False is the literal upsample-then-conv (reference; tests check they agree).
+    """
+
+    features: int
+    fast: bool = True
+
+    @nn.compact
+    def __call__(self, x):
+        cin, c = x.shape[-1], self.features
+        kernel = self.param("kernel", nn.initializers.lecun_normal(), (5, 5, cin, c))
+        bias = self.param("bias", nn.initializers.zeros, (c,))
+        dn = ("NHWC", "HWIO", "NHWC")
+        if not self.fast:
+            y = jax.lax.conv_general_dilated(
+                upsample_nearest2(x), kernel, (1, 1), ((2, 2), (2, 2)), dimension_numbers=dn
+            )
+            return y + bias
+        taps = jnp.asarray(_PHASE_TAPS)
+        k = jnp.einsum("apu,bqv,uvio->pqiabo", taps, taps, kernel).reshape(3, 3, cin, 4 * c)
+        y = jax.lax.conv_general_dilated(x, k, (1, 1), ((1, 1), (1, 1)), dimension_numbers=dn)
+        return depth_to_space2(y + jnp.tile(bias, 4))
+
+
+class PaperDecoder(nn.Module):
+    """CLS feature (B,D) -> depth (B,S,S): the release's decoder with one output channel.
+
+    WeightNormDense(D -> C0*b*b) + ReLU with b = ceil(S/16), reshape (C0,b,b), then 4 x (nearest x2 +
+    conv k5, see UpConv5): C0->C1->C2->C3->1, ReLU between, LeakyReLU(0.01) at the end.
+    S not a multiple of 16: the 16*b map is resized to S.
+    At paper scale (D=768, C0=512, S=224) the first Linear alone holds ~77M parameters.
+    """
+
+    channels: tuple[int, int, int, int]
+    out_size: int
+    fast: bool = True
+
+    @nn.compact
+    def __call__(self, feature, tokens=None):
+        del tokens
+        b = math.ceil(self.out_size / 16)
+        c0 = self.channels[0]
+        x = nn.relu(WeightNormDense(c0 * b * b, name="fc")(feature))
+        # torch reshapes the Linear output as (C0, b, b): keep that order so release weights load unchanged
+        x = x.reshape(-1, c0, b, b).transpose(0, 2, 3, 1)
+        outs = (*self.channels[1:], 1)
+        for i, c in enumerate(outs):
+            x = UpConv5(c, self.fast, name=f"conv_{i}")(x)
+            x = nn.relu(x) if i < len(outs) - 1 else x
+        return nn.leaky_relu(_fit(x, self.out_size), 0.01)[..., 0]
+
+
+class TokenDecoder(nn.Module):
+    """Patch tokens (B,h,w,D) -> depth (B,S,S), light: 1x1 conv to C0, then n = ceil(log2(S/h)) stages of
+    Dense(4C) + pixel shuffle (ReLU between; the last stage emits 1 channel), LeakyReLU(0.01).
+
+    Every stage is per pixel, so the sub-pixel offsets stay as extra axes (B,h,w,2,2,...,C) and one
+    transpose at the end lays the map out: the same function as depth_to_space2 after each stage, without
+    moving the wide intermediate maps. When S/h is not a power of two (ViT-B/14 at 224: h=16, S/h=14) the
+    map grows past S (16 -> 256) and the one-channel result is resized to S (bilinear, antialiased).
+    Channels for stage i (< n-1) are channels[min(i+1, len-1)].
+    """
+
+    channels: tuple[int, ...]
+    out_size: int
+
+    @nn.compact
+    def __call__(self, feature, tokens):
+        del feature
+        b, h, w, _ = tokens.shape
+        n = max(1, math.ceil(math.log2(self.out_size / h) - 1e-9))
+        x = nn.Conv(self.channels[0], (1, 1), name="proj")(tokens)
+        for i in range(n):
+            c = 1 if i == n - 1 else self.channels[min(i + 1, len(self.channels) - 1)]
+            x = nn.Dense(4 * c, name=f"up_{i}")(nn.relu(x))
+            x = x.reshape(*x.shape[:-1], 2, 2, c)  # (..., dy, dx, c) as depth_to_space2 reads the channels
+        # axes: b, h, w, (dy_1, dx_1), ..., (dy_n, dx_n), c=1 -> b, h, dy_1..dy_n, w, dx_1..dx_n
+        dys = [3 + 2 * i for i in range(n)]
+        x = x[..., 0].transpose(0, 1, *dys, 2, *[d + 1 for d in dys])
+        x = x.reshape(b, h * 2**n, w * 2**n, 1)
+        return nn.leaky_relu(_fit(x, self.out_size), 0.01)[..., 0]
+
+
+def decoder_from_config(cfg_decoder: dict, out_size: int) -> nn.Module:
+    kind = cfg_decoder.get("kind", "tokens")
+    channels = tuple(cfg_decoder["channels"])
+    if kind == "paper":
+        return PaperDecoder(channels, out_size, fast=cfg_decoder.get("fast", True))
+    if kind == "tokens":
+        return TokenDecoder(channels, out_size)
+    raise ValueError(f"unknown decoder kind {kind!r}; choose one of {', '.join(DECODER_KINDS)}")
+
+
+def count_params(tree) -> int:
+    """Number of scalars in a (possibly abstract, from jax.eval_shape) pytree."""
+    return int(sum(np.prod(x.shape) for x in jax.tree.leaves(tree)))
+
+
+def _timed_steps(fns: dict, args: dict, steps: int, rounds: int) -> dict:
+    """Milliseconds per call of each jitted fn, interleaved over rounds (min): these VMs lose CPU to
+    neighbours, so only ratios taken in one run are comparable."""
+    best = {k: float("inf") for k in fns}
+    for k, f in fns.items():
+        jax.block_until_ready(f(*args[k]))  # compile
+    for _ in range(rounds):
+        for k, f in fns.items():
+            t0 = time.perf_counter()
+            for _ in range(steps):
+                out = f(*args[k])
+            jax.block_until_ready(out)
+            best[k] = min(best[k], (time.perf_counter() - t0) / steps * 1e3)
+    return {k: round(v, 1) for k, v in best.items()}
+
+
+def measure_decoders(preset: str = "quick", batch: int = 64, steps: int = 3, rounds: int = 3) -> dict:
+    """Decoder cost on CPU: parameter counts and train-step time (forward + backward, plain SGD update) of
+    the decoder alone and of the whole dino_rd model with each decoder kind (dino_r = no decoder) at
+    `preset` scale, plus the paper-scale decoders counted with jax.eval_shape (no allocation)."""
+    import configs
+
+    from .. import registry
+    from . import model as model_lib
+    from . import vit
+
+    cfg = configs.get(preset)
+    m, s = cfg["model"], cfg["data"]["input_size"]
+    d, p = m["vit"]["dim"], m["vit"]["patch"]
+    key = jax.random.PRNGKey(0)
+    images = jax.random.normal(key, (batch, s, s, 3))
+    feature = jax.random.normal(key, (batch, d))
+    tokens = jax.random.normal(key, (batch, s // p, s // p, d))
+    target = jax.random.uniform(key, (batch, s, s))
+
+    def sgd(loss_fn):
+        @jax.jit
+        def step(params):
+            loss, g = jax.value_and_grad(loss_fn)(params)
+            return jax.tree.map(lambda a, b: a - 1e-3 * b, params, g), loss
+
+        return step
+
+    fns, args, counts = {}, {}, {}
+    for kind, fast in (("paper", False), ("paper", True), ("tokens", True)):
+        dec = decoder_from_config({**m["decoder"], "kind": kind, "fast": fast}, s)
+        params = dec.init(key, feature, tokens)["params"]
+        counts[kind] = count_params(params)
+        kind = kind if fast else "paper_literal"  # literal: upsample, then conv k5
+        fns[f"decoder_{kind}"] = sgd(
+            lambda q, dec=dec: jnp.mean((dec.apply({"params": q}, feature, tokens) - target) ** 2)
+        )
+        args[f"decoder_{kind}"] = (params,)
+    for name, kind in (("dino_rd_paper", "paper"), ("dino_rd_tokens", "tokens"), ("dino_r", None)):
+        spec = registry.get("dino_r" if kind is None else "dino_rd")
+        net = model_lib.build({**m, "decoder": {**m["decoder"], "kind": kind or "tokens"}}, spec, s)
+        params = net.init(key, images)["params"]
+
+        def loss(q, net=net):
+            out = net.apply({"params": q}, images)
+            depth = jnp.mean((out["depth"] - target) ** 2) if "depth" in out else 0.0
+            return jnp.mean(jnp.abs(out["force"])) + 10.0 * depth
+
+        fns[f"model_{name}"], args[f"model_{name}"] = sgd(loss), (params,)
+    ms = _timed_steps(fns, args, steps, rounds)
+    pcfg = configs.get("paper")
+    pm, ps, dv = pcfg["model"], pcfg["data"]["input_size"], vit.vit_config("b14")["dim"]
+    pdec = decoder_from_config({**pm["decoder"], "kind": "paper"}, ps)
+    pshapes = jax.eval_shape(pdec.init, key, jnp.zeros((1, dv)))["params"]
+    tdec = decoder_from_config({**pm["decoder"], "kind": "tokens"}, ps)
+    tshapes = jax.eval_shape(tdec.init, key, jnp.zeros((1, dv)), jnp.zeros((1, ps // 14, ps // 14, dv)))
+    return {
+        "preset": preset,
+        "batch": batch,
+        "input_size": s,
+        "decoder_params": counts,
+        "train_step_ms": ms,
+        "paper_scale": {
+            "paper_decoder_params": count_params(pshapes),
+            "paper_decoder_linear_params": count_params(pshapes["fc"]),
+            "tokens_decoder_params": count_params(tshapes["params"]),
+        },
+    }
+
+
+if __name__ == "__main__":
+    import json
+
+    print(json.dumps(measure_decoders(), indent=1))

@@ -1,0 +1,52 @@
+"""The composed FeelAnyForce network: backbone -> force regressor (+ depth decoder if the method has one)."""
+
+from __future__ import annotations
+
+import flax.linen as nn
+
+from . import heads, resnet, vit
+
+BACKBONES = ("vit", "resnet")
+
+
+class ForceModel(nn.Module):
+    """images (B,S,S,3) -> {"force": (B,3), "feature": (B,D), "depth": (B,S,S) if a decoder is given}.
+
+    Params are grouped under the attribute names "backbone", "regressor", "decoder" (fixed: training labels
+    and pretraining rely on them). Without a decoder no depth is computed at all.
+    """
+
+    backbone: nn.Module
+    regressor: nn.Module
+    decoder: nn.Module | None = None
+
+    def __call__(self, images, train: bool = False):
+        enc = self.backbone(images, train=train)
+        out = {"force": self.regressor(enc["feature"]), "feature": enc["feature"]}
+        if self.decoder is not None:
+            out["depth"] = self.decoder(enc["feature"], enc["tokens"])
+        return out
+
+
+def build_backbone(cfg_model: dict, kind: str, input_size: int) -> nn.Module:
+    """Backbone from cfg["model"]: kind "vit" | "resnet"; __call__(images, train) -> {"feature", "tokens"}."""
+    del input_size  # both backbones adapt to the input grid (the ViT interpolates its position table)
+    if kind == "vit":
+        return vit.from_config(cfg_model["vit"])
+    if kind == "resnet":
+        return resnet.from_config(cfg_model["resnet"])
+    raise ValueError(f"unknown backbone {kind!r}; choose one of {', '.join(BACKBONES)}")
+
+
+def build(cfg_model: dict, spec, input_size: int) -> ForceModel:
+    """Model for a registry Method (or its name) at square input `input_size`."""
+    if isinstance(spec, str):
+        from .. import registry
+
+        spec = registry.get(spec)
+    decoder = heads.decoder_from_config(cfg_model["decoder"], input_size) if spec.depth_head else None
+    return ForceModel(
+        backbone=build_backbone(cfg_model, spec.backbone, input_size),
+        regressor=heads.Regressor(tuple(cfg_model["regressor"]["widths"])),
+        decoder=decoder,
+    )
