@@ -1,0 +1,46 @@
+"""Training: a pure jitted step over a pytree state, the epoch loop, checkpoints and run folders.
+
+    state = train.init_state(cfg, spec, key, input_size)          # params, batch_stats, opt_state, key
+    state, m = train.train_step(state, batch)                      # jitted once; m: loss, force_l1, ...
+    summary = train.train(cfg, "dino_rd", "data/quick", "runs/x")  # or python -m ffjax.train
+    cfg, spec, stats, variables = train.load_checkpoint("runs/x", which="best")
+
+Pretraining (self-supervised backbones) lives in `ffjax.train.pretrain`.
+"""
+
+from ffjax.train.checkpoint import Checkpointer, load_checkpoint, read_model_json, write_model_json
+from ffjax.train.loop import NonFiniteLossError, open_sources, train, validate
+from ffjax.train.state import (
+    Labeler,
+    TrainState,
+    abstract_state,
+    init_state,
+    learning_rate,
+    make_optimizer,
+    replace_backbone,
+)
+from ffjax.train.step import TRACE_COUNT, eval_step, make_mesh, replicate, shard_batch, train_step
+
+__all__ = [
+    "TRACE_COUNT",
+    "Checkpointer",
+    "Labeler",
+    "NonFiniteLossError",
+    "TrainState",
+    "abstract_state",
+    "eval_step",
+    "init_state",
+    "learning_rate",
+    "load_checkpoint",
+    "make_mesh",
+    "make_optimizer",
+    "open_sources",
+    "read_model_json",
+    "replace_backbone",
+    "replicate",
+    "shard_batch",
+    "train",
+    "train_step",
+    "validate",
+    "write_model_json",
+]

@@ -1,0 +1,350 @@
+"""The training loop: epochs of jitted steps, validation each epoch, best/latest checkpoints, resume.
+
+Resuming restores params, optimizer, step, rng key and the grain iterator position from the newest
+checkpoint and replays nothing else, so a killed-and-resumed run ends with the same numbers as an
+uninterrupted one. Losses are checked for finiteness before every checkpoint: a bad step is never saved.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from ffjax import metrics as fmetrics
+from ffjax.train.checkpoint import Checkpointer, read_model_json, write_model_json
+from ffjax.train.state import init_state
+from ffjax.train.step import eval_step, make_mesh, replicate, shard_batch, train_step
+
+LOG_NAME, CSV_NAME, SUMMARY_NAME = "train_log.jsonl", "epochs.csv", "summary.json"
+CSV_FIELDS = (
+    "epoch",
+    "step",
+    "train_loss",
+    "train_force_l1",
+    "val_loss",
+    "val_force_l1",
+    "val_depth_mse",
+    "val_nl1",
+    "val_nl1_fx",
+    "val_nl1_fy",
+    "val_nl1_fz",
+    "val_mae_fx",
+    "val_mae_fy",
+    "val_mae_fz",
+    "time_s",
+)
+
+
+class NonFiniteLossError(FloatingPointError):
+    """Raised when a training loss is NaN/inf; the run folder keeps its last good checkpoint."""
+
+
+def open_sources(data_arg):
+    """(train, val) sources from a dataset root (DIR/train, DIR/val), a {"train": .., "val": ..} dict
+    of paths (shard dirs or release CSVs) or opened sources, or a (train, val) pair. val may be None."""
+    from ffjax import data
+
+    def _open(x):
+        return data.open_split(x) if isinstance(x, (str, os.PathLike)) else x
+
+    if isinstance(data_arg, (str, os.PathLike)):
+        root = Path(data_arg)
+        val = root / "val"
+        return data.open_split(root / "train"), (data.open_split(val) if val.exists() else None)
+    if isinstance(data_arg, dict):
+        return _open(data_arg["train"]), (_open(data_arg["val"]) if data_arg.get("val") is not None else None)
+    train_src, val_src = data_arg
+    return _open(train_src), (_open(val_src) if val_src is not None else None)
+
+
+def validate(state, val_src, stats, input_size: int, batch_size: int, mesh) -> dict:
+    """Total/force/depth validation loss plus the force metric (normalized by the TRAIN force range)."""
+    sums, count, preds, trues = {"loss": 0.0, "force_l1": 0.0, "depth_mse": 0.0}, 0, [], []
+    for batch in fmetrics.iterate_once(val_src, stats, input_size, batch_size):
+        n = len(batch["force"])
+        padded = {k: _pad(np.asarray(v), batch_size) for k, v in batch.items()}
+        padded["mask"] = (np.arange(batch_size) < n).astype(np.float32)
+        m = jax.device_get(eval_step(state, shard_batch(padded, mesh)))
+        for k in sums:
+            sums[k] += float(m[k]) * n
+        count += n
+        preds.append(np.asarray(m["force"])[:n])
+        trues.append(np.asarray(batch["force"]))
+    out = {k: v / max(count, 1) for k, v in sums.items()}
+    out.update(fmetrics.summarize(np.concatenate(preds), np.concatenate(trues), stats.force_min, stats.force_max))
+    return out
+
+
+def _pad(x: np.ndarray, size: int) -> np.ndarray:
+    if len(x) == size:
+        return x
+    return np.concatenate([x, np.zeros((size - len(x), *x.shape[1:]), x.dtype)])
+
+
+class _Log:
+    """JSONL (every row) + CSV (one row per epoch); on resume rows past the restored step are dropped."""
+
+    def __init__(self, run_dir: Path, keep_until: int | None):
+        self.jsonl, self.csv = run_dir / LOG_NAME, run_dir / CSV_NAME
+        if keep_until is None:
+            for p in (self.jsonl, self.csv):
+                p.unlink(missing_ok=True)
+        else:
+            self._truncate(keep_until)
+
+    def _truncate(self, step: int) -> None:
+        if self.jsonl.exists():
+            rows = [r for r in self.jsonl.read_text().splitlines() if r and json.loads(r)["step"] <= step]
+            self.jsonl.write_text("".join(r + "\n" for r in rows))
+        if self.csv.exists():
+            with self.csv.open() as f:
+                rows = [r for r in csv.DictReader(f) if int(r["step"]) <= step]
+            self._write_csv(rows, "w")
+
+    def row(self, row: dict) -> None:
+        with self.jsonl.open("a") as f:
+            f.write(json.dumps(row) + "\n")
+
+    def epoch(self, row: dict) -> None:
+        self._write_csv([row], "a")
+
+    def _write_csv(self, rows, mode: str) -> None:
+        new = mode == "w" or not self.csv.exists()
+        with self.csv.open(mode, newline="") as f:
+            w = csv.DictWriter(f, fieldnames=CSV_FIELDS, extrasaction="ignore")
+            if new:
+                w.writeheader()
+            w.writerows(rows)
+
+
+def train(
+    cfg: dict,
+    spec,
+    data,
+    out_dir,
+    resume: bool = False,
+    init_backbone: tuple | None = None,
+    *,
+    max_steps: int | None = None,
+    callback: Callable | None = None,
+    progress: bool = True,
+    devices=None,
+) -> dict:
+    """Train `spec` (a registry Method or its name) with `cfg`; returns a summary dict.
+
+    data: dataset root with train/ and val/, or {"train": .., "val": ..}, or a (train, val) pair.
+    init_backbone: (params, batch_stats) from `pretrain.load_backbone` (ignored on resume: the
+    checkpoint has the weights). max_steps stops early (after checkpointing) — resuming continues.
+    callback(step, state) runs after each step; it may return a replacement state (tests inject faults).
+    """
+    from ffjax import data as fdata
+    from ffjax import registry
+
+    spec = registry.get(spec) if isinstance(spec, str) else spec
+    run_dir = Path(out_dir).absolute()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    tc = cfg["train"]
+    input_size, bs = int(cfg["data"]["input_size"]), int(tc["batch_size"])
+    train_src, val_src = open_sources(data)
+    ckpt = Checkpointer(run_dir)
+    has_ckpt = ckpt.latest_step() is not None
+    if has_ckpt and not resume:
+        ckpt.close()
+        raise FileExistsError(f"{run_dir} already holds checkpoints: pass resume=True (--resume) or a new folder")
+    if resume and has_ckpt:
+        info = read_model_json(run_dir)
+        if info["method"] != spec.name:
+            raise ValueError(f"{run_dir} was trained with method {info['method']!r}, not {spec.name!r}")
+        stats = fdata.Stats.from_dict(info["stats"])
+        changed = _diff(info["cfg"], json.loads(json.dumps(cfg)))
+        if changed:  # allowed (e.g. more epochs), but the result then differs from an uninterrupted run
+            warnings.warn(f"resuming {run_dir} with a changed config: {', '.join(changed)}", stacklevel=2)
+    else:
+        stats = fdata.Stats.compute(train_src, cfg["data"])
+    write_model_json(run_dir, cfg, spec, stats, input_size)
+
+    steps_per_epoch = len(train_src) // bs
+    if steps_per_epoch == 0:
+        raise ValueError(f"train split has {len(train_src)} records, fewer than one batch of {bs}")
+    total = int(tc["epochs"]) * steps_per_epoch
+    ckpt_every = max(int(tc.get("ckpt_every", steps_per_epoch)), 1)
+    log_every = max(1, min(25, steps_per_epoch))
+    mesh = make_mesh(devices)
+
+    key = jax.random.PRNGKey(int(cfg["seed"]))
+    state = init_state(
+        cfg,
+        spec,
+        key,
+        input_size,
+        init_backbone=None if resume and has_ckpt else init_backbone,
+        total_steps=total,
+    )
+    state = replicate(state, mesh)
+    it = iter(fdata.make_dataset(train_src, stats, input_size, bs, seed=int(cfg["seed"]), shuffle=True))
+    meta = {
+        "epoch_loss": 0.0,
+        "epoch_force_l1": 0.0,
+        "epoch_steps": 0,
+        "best_val_loss": None,
+        "best_step": None,
+        "best_epoch": None,
+        "last_val": None,
+        "elapsed_s": 0.0,
+    }
+    if resume and has_ckpt:
+        state, data_state, meta = ckpt.restore_latest(state)
+        state = replicate(state, mesh)
+        it.set_state(data_state)
+    start = int(jax.device_get(state.step))
+    log = _Log(run_dir, start if resume else None)
+
+    pending: list = []
+    t0, elapsed0 = time.perf_counter(), float(meta["elapsed_s"])
+    bar = _progress(progress, total, start, spec.name)
+
+    def flush():
+        rows = jax.device_get(pending)
+        pending.clear()
+        for step, m in rows:
+            row = {
+                "kind": "train",
+                "step": step,
+                "epoch": math.ceil(step / steps_per_epoch),
+                **{k: float(v) for k, v in m.items()},
+            }
+            log.row(row)
+            if not math.isfinite(row["loss"]):
+                good = ckpt.latest_step()
+                raise NonFiniteLossError(
+                    f"non-finite training loss ({row['loss']}) at step {step} "
+                    f"(epoch {row['epoch']}); stopped. "
+                    f"Last good checkpoint: step {good} in {run_dir / 'checkpoints'}"
+                    + (" (none yet)" if good is None else "")
+                    + ". Lower train.lr_* or set train.grad_clip, then resume or restart."
+                )
+            meta["epoch_loss"] += row["loss"]
+            meta["epoch_force_l1"] += row["force_l1"]
+            meta["epoch_steps"] += 1
+        if rows and bar is not None:
+            bar.set_postfix(loss=f"{rows[-1][1]['loss']:.4f}")
+
+    try:
+        for step in range(start, total):
+            batch = next(it)
+            state, m = train_step(state, shard_batch(batch, mesh))
+            done = step + 1
+            pending.append((done, m))
+            if bar is not None:
+                bar.update(1)
+            if callback is not None:
+                state = callback(done, state) or state
+            epoch_end = done % steps_per_epoch == 0
+            save = epoch_end or done % ckpt_every == 0 or done == max_steps
+            if save or done % log_every == 0:
+                flush()
+            if epoch_end:
+                _end_epoch(
+                    state,
+                    meta,
+                    done,
+                    done // steps_per_epoch,
+                    val_src,
+                    stats,
+                    input_size,
+                    bs,
+                    mesh,
+                    ckpt,
+                    log,
+                    elapsed0 + time.perf_counter() - t0,
+                )
+            if save:
+                meta["elapsed_s"] = elapsed0 + time.perf_counter() - t0
+                ckpt.save_latest(done, state, it.get_state(), meta)
+            if max_steps is not None and done >= max_steps:
+                break
+        flush()
+    finally:
+        if bar is not None:
+            bar.close()
+        ckpt.wait()
+        ckpt.close()
+
+    final_step = int(jax.device_get(state.step))
+    elapsed = elapsed0 + time.perf_counter() - t0
+    summary = {
+        "run_dir": str(run_dir),
+        "method": spec.name,
+        "preset": cfg.get("preset"),
+        "steps": final_step,
+        "total_steps": total,
+        "complete": final_step >= total,
+        "steps_per_epoch": steps_per_epoch,
+        "epochs": final_step / steps_per_epoch,
+        "devices": int(mesh.devices.size),
+        "train_time_s": elapsed,
+        "best_step": meta["best_step"],
+        "best_epoch": meta["best_epoch"],
+        "best_val_loss": meta["best_val_loss"],
+        "val": meta["last_val"],
+        "force_range": {"min": list(stats.force_min), "max": list(stats.force_max)},
+    }
+    (run_dir / SUMMARY_NAME).write_text(json.dumps(summary, indent=2))
+    summary["state"] = state
+    return summary
+
+
+def _end_epoch(state, meta, step, epoch, val_src, stats, input_size, bs, mesh, ckpt, log, elapsed):
+    n = max(meta["epoch_steps"], 1)
+    row = {
+        "epoch": epoch,
+        "step": step,
+        "train_loss": meta["epoch_loss"] / n,
+        "train_force_l1": meta["epoch_force_l1"] / n,
+        "time_s": round(elapsed, 2),
+    }
+    meta.update(epoch_loss=0.0, epoch_force_l1=0.0, epoch_steps=0)
+    if val_src is not None:
+        val = validate(state, val_src, stats, input_size, bs, mesh)
+        meta["last_val"] = {**val, "epoch": epoch, "step": step}
+        log.row({"kind": "val", "step": step, "epoch": epoch, **val})
+        row.update(
+            {
+                "val_loss": val["loss"],
+                "val_force_l1": val["force_l1"],
+                "val_depth_mse": val["depth_mse"],
+                "val_nl1": val["nl1"],
+            }
+        )
+        row.update({f"val_nl1_{a}": v for a, v in zip(("fx", "fy", "fz"), val["nl1_axes"])})
+        row.update({f"val_mae_{a}": v for a, v in zip(("fx", "fy", "fz"), val["mae_n"])})
+        score = val["loss"]
+    else:
+        score = row["train_loss"]  # no validation split: keep the newest epoch as "best"
+    if meta["best_val_loss"] is None or score < meta["best_val_loss"]:
+        meta.update(best_val_loss=score, best_step=step, best_epoch=epoch)
+        ckpt.save_best(step, state, {"epoch": epoch, "step": step, "val_loss": score, "val": meta["last_val"]})
+    log.epoch(row)
+
+
+def _diff(a, b, prefix: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        return [d for k in sorted(set(a) | set(b)) for d in _diff(a.get(k), b.get(k), f"{prefix}{k}.")]
+    return [] if a == b else [f"{prefix[:-1]}: {a} -> {b}"]
+
+
+def _progress(enabled: bool, total: int, start: int, name: str):
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, initial=start, desc=f"train {name}", unit="step", dynamic_ncols=True)

@@ -1,0 +1,113 @@
+"""The pure training and evaluation steps, each jitted once, and data-parallel placement.
+
+loss = alpha * L1(force, N) + beta * MSE(depth in [0, 1]); beta is 0 for methods without a depth head.
+Data parallel: the batch is sharded along a 1-D mesh of all devices and the state is replicated;
+XLA inserts the gradient all-reduce, so the numbers equal a single-device step up to float
+summation order. One device is the degenerate mesh.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from ffjax.train.state import TrainState
+
+# Incremented at trace time only: tests use it to check the step compiles once.
+TRACE_COUNT = {"train": 0, "eval": 0}
+
+
+def _forward(state: TrainState, params, images, train: bool, key):
+    variables = {"params": params}
+    if state.batch_stats:
+        variables["batch_stats"] = state.batch_stats
+    mutable = ["batch_stats"] if (train and state.batch_stats) else False
+    res = state.model.apply(variables, images, train=train, rngs={"dropout": key}, mutable=mutable)
+    if mutable:
+        out, updates = res
+        return out, updates["batch_stats"]
+    return res, state.batch_stats
+
+
+def _losses(state: TrainState, out, batch, weights=None):
+    """Per-batch force L1 and depth MSE; `weights` (B,) masks padded rows in evaluation."""
+    f_err = jnp.mean(jnp.abs(out["force"] - batch["force"]), axis=-1)
+    if state.beta and "depth" in out:
+        d_err = jnp.mean(jnp.square(out["depth"] - batch["depth"]), axis=tuple(range(1, out["depth"].ndim)))
+    else:
+        d_err = jnp.zeros_like(f_err)
+    if weights is None:
+        force_l1, depth_mse = jnp.mean(f_err), jnp.mean(d_err)
+    else:
+        n = jnp.maximum(jnp.sum(weights), 1.0)
+        force_l1, depth_mse = jnp.sum(f_err * weights) / n, jnp.sum(d_err * weights) / n
+    loss = state.alpha * force_l1 + state.beta * depth_mse
+    return loss, force_l1, depth_mse
+
+
+def _train_step(state: TrainState, batch: dict):
+    TRACE_COUNT["train"] += 1
+    labels = state.labels_fn(state.params)
+    key = jax.random.fold_in(state.key, state.step)
+
+    def loss_fn(params):
+        # Frozen leaves get stop_gradient: their backward pass is never built (a frozen backbone
+        # costs a forward only), and set_to_zero keeps them fixed.
+        params = jax.tree.map(lambda p, l: jax.lax.stop_gradient(p) if l == "frozen" else p, params, labels)
+        out, new_stats = _forward(state, params, batch["image"], state.bn_train, key)
+        loss, force_l1, depth_mse = _losses(state, out, batch)
+        return loss, (force_l1, depth_mse, new_stats)
+
+    (loss, (force_l1, depth_mse, new_stats)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
+    updates, opt_state = state.tx.update(grads, state.opt_state, state.params)
+    params = optax.apply_updates(state.params, updates)
+    metrics = {
+        "loss": loss,
+        "force_l1": force_l1,
+        "depth_mse": depth_mse,
+        "grad_norm": optax.tree.norm(grads),
+    }
+    new_state = state.replace(step=state.step + 1, params=params, batch_stats=new_stats, opt_state=opt_state)
+    return new_state, metrics
+
+
+def _eval_step(state: TrainState, batch: dict):
+    TRACE_COUNT["eval"] += 1
+    out, _ = _forward(state, state.params, batch["image"], False, state.key)
+    weights = batch.get("mask")
+    loss, force_l1, depth_mse = _losses(state, out, batch, weights)
+    return {"loss": loss, "force_l1": force_l1, "depth_mse": depth_mse, "force": out["force"]}
+
+
+# train_step(state, batch) -> (state, {loss, force_l1, depth_mse, grad_norm}); the input state is donated.
+train_step = jax.jit(_train_step, donate_argnums=0)
+# eval_step(state, batch) -> {loss, force_l1, depth_mse, force (B,3)}; an optional batch["mask"] (B,)
+# weights rows, so a padded last batch averages over its real rows only.
+eval_step = jax.jit(_eval_step)
+
+
+def make_mesh(devices=None) -> Mesh:
+    """1-D mesh ("data",) over all (or the given) devices."""
+    return Mesh(np.asarray(devices if devices is not None else jax.devices()), ("data",))
+
+
+def replicate(tree, mesh: Mesh):
+    """Replicate a state over the mesh. On a 1-device mesh arrays stay uncommitted (placed like plain jax
+    arrays), so the loop, a resumed run and direct train_step calls all share one compiled step."""
+    if mesh.devices.size == 1:
+        return jax.tree.map(jnp.asarray, jax.device_get(tree))
+    return jax.device_put(tree, NamedSharding(mesh, PartitionSpec()))
+
+
+def shard_batch(batch: dict, mesh: Mesh) -> dict:
+    """Put a host batch on the mesh, split along axis 0 (the batch must divide by the device count)."""
+    n = mesh.devices.size
+    b = len(next(iter(batch.values())))
+    if b % n:
+        raise ValueError(f"batch size {b} is not divisible by the {n} devices of the mesh")
+    if n == 1:
+        return batch
+    return jax.device_put(batch, NamedSharding(mesh, PartitionSpec("data")))
