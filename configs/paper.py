@@ -19,7 +19,7 @@ CONFIG = {
         "vit": {"dim": 768, "depth": 12, "heads": 12, "patch": 14, "mlp_ratio": 4.0, "layerscale": 1e-5,
                 "pos_grid": 37},
         "resnet": {"widths": (64, 128, 256, 512), "blocks": (2, 2, 2, 2), "stem": "imagenet"},
-        "regressor": {"widths": (512, 256, 128, 64)},
+        "regressor": {"widths": (512, 256, 128, 64), "normalize_output": True, "out_scale": None, "out_shift": None},
         "decoder": {"kind": "paper", "channels": (512, 256, 256, 128)},
     },
     "train": {

@@ -23,7 +23,7 @@ CONFIG = {
         "vit": {"dim": 128, "depth": 4, "heads": 4, "patch": 8, "mlp_ratio": 4.0, "layerscale": 1e-5,
                 "pos_grid": None},
         "resnet": {"widths": (16, 32, 64, 128), "blocks": (2, 2, 2, 2), "stem": "small"},
-        "regressor": {"widths": (256, 128, 64, 32)},
+        "regressor": {"widths": (256, 128, 64, 32), "normalize_output": True, "out_scale": None, "out_shift": None},
         "decoder": {"kind": "tokens", "channels": (64, 32, 32, 16)},
     },
     "train": {

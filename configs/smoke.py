@@ -19,7 +19,7 @@ CONFIG = {
         "vit": {"dim": 32, "depth": 2, "heads": 2, "patch": 8, "mlp_ratio": 2.0, "layerscale": 1e-5,
                 "pos_grid": None},
         "resnet": {"widths": (8, 16, 16, 32), "blocks": (1, 1, 1, 1), "stem": "small"},
-        "regressor": {"widths": (32, 16, 16, 8)},
+        "regressor": {"widths": (32, 16, 16, 8), "normalize_output": True, "out_scale": None, "out_shift": None},
         "decoder": {"kind": "tokens", "channels": (16, 8, 8, 8)},
     },
     "train": {

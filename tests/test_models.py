@@ -129,7 +129,8 @@ def test_resnet_batch_stats(smoke):
     assert ev["tokens"].shape == out["tokens"].shape
     full = models.build_backbone(cfg_model, "resnet", s)
     _, out = _shapes(full, images, train=True)
-    assert out["tokens"].shape == (2, 1, 1, cfg_model["resnet"]["widths"][-1])  # stride 32
+    stride = 8 if cfg_model["resnet"].get("stem") == "small" else 32
+    assert out["tokens"].shape == (2, s // stride, s // stride, cfg_model["resnet"]["widths"][-1])
     small = models.build_backbone({**cfg_model, "resnet": {**cfg_model["resnet"], "stem": "small"}}, "resnet", s)
     _, out = _shapes(small, images)
     assert out["tokens"].shape[1] == s // 8

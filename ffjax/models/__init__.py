@@ -15,6 +15,8 @@ from .heads import (
     count_params,
     decoder_from_config,
     measure_decoders,
+    output_affine,
+    regressor_from_config,
 )
 from .model import BACKBONES, ForceModel, build, build_backbone
 from .resnet import ResNet
@@ -37,5 +39,7 @@ __all__ = [
     "decoder_from_config",
     "interpolate_pos_embed",
     "measure_decoders",
+    "output_affine",
+    "regressor_from_config",
     "vit_config",
 ]

@@ -52,9 +52,15 @@ class Regressor(nn.Module):
     """feature (B,D) -> force (B,3) in newtons: 4 x (Linear + LayerNorm + GELU), then Linear "out".
 
     The last LayerNorm is "norm_{len(widths)-1}" (norm_3 for 4 widths): calibration tunes it with "out".
+    out_scale/out_shift: a fixed (not trained) affine map of the output, force = raw * scale + shift.
+    Training sets them from the training labels (half-range, mid-range) so the head predicts O(1) numbers:
+    Adam moves a weight about lr per step, so an identity head needs ~15 N / lr steps just to reach the
+    top of the Fz range. None = identity, as the release (and its converted weights) has.
     """
 
     widths: tuple[int, ...] = (512, 256, 128, 64)
+    out_scale: tuple[float, float, float] | None = None
+    out_shift: tuple[float, float, float] | None = None
 
     @nn.compact
     def __call__(self, x):
@@ -62,7 +68,29 @@ class Regressor(nn.Module):
             x = WeightNormDense(w, name=f"fc_{i}")(x)
             x = nn.LayerNorm(1e-5, name=f"norm_{i}")(x)  # torch default eps
             x = nn.gelu(x, approximate=False)
-        return WeightNormDense(3, name="out")(x)
+        x = WeightNormDense(3, name="out")(x)
+        if self.out_scale is not None:
+            x = x * jnp.asarray(self.out_scale, x.dtype)
+        if self.out_shift is not None:
+            x = x + jnp.asarray(self.out_shift, x.dtype)
+        return x
+
+
+def regressor_from_config(cfg_regressor: dict) -> Regressor:
+    """Regressor from cfg["model"]["regressor"] (widths, optional out_scale / out_shift)."""
+
+    def vec(key):
+        v = cfg_regressor.get(key)
+        return None if v is None else tuple(float(a) for a in v)
+
+    return Regressor(tuple(int(w) for w in cfg_regressor["widths"]), vec("out_scale"), vec("out_shift"))
+
+
+def output_affine(force_min, force_max) -> dict:
+    """out_scale / out_shift for a training force range: raw outputs in [-1, 1] span the range."""
+    lo, hi = np.asarray(force_min, np.float64), np.asarray(force_max, np.float64)
+    return {"out_scale": [float(v) for v in np.maximum((hi - lo) / 2, 1e-3)],
+            "out_shift": [float(v) for v in (hi + lo) / 2]}
 
 
 def upsample_nearest2(x):

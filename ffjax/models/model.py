@@ -47,6 +47,6 @@ def build(cfg_model: dict, spec, input_size: int) -> ForceModel:
     decoder = heads.decoder_from_config(cfg_model["decoder"], input_size) if spec.depth_head else None
     return ForceModel(
         backbone=build_backbone(cfg_model, spec.backbone, input_size),
-        regressor=heads.Regressor(tuple(cfg_model["regressor"]["widths"])),
+        regressor=heads.regressor_from_config(cfg_model["regressor"]),
         decoder=decoder,
     )

@@ -44,6 +44,21 @@ CSV_FIELDS = (
 )
 
 
+def with_output_affine(cfg: dict, stats) -> dict:
+    """Fill the regressor's fixed output scale/shift from the training force range (a copy of cfg).
+
+    Only when cfg model.regressor.normalize_output is set and no scale is given yet; model.json then
+    records the numbers, so a loaded checkpoint rebuilds the same model.
+    """
+    from ffjax.models import output_affine
+
+    rc = cfg["model"]["regressor"]
+    if not rc.get("normalize_output") or rc.get("out_scale") is not None:
+        return cfg
+    cfg = {**cfg, "model": {**cfg["model"], "regressor": {**rc, **output_affine(stats.force_min, stats.force_max)}}}
+    return cfg
+
+
 class NonFiniteLossError(FloatingPointError):
     """Raised when a training loss is NaN/inf; the run folder keeps its last good checkpoint."""
 
@@ -170,6 +185,7 @@ def train(
             warnings.warn(f"resuming {run_dir} with a changed config: {', '.join(changed)}", stacklevel=2)
     else:
         stats = fdata.Stats.compute(train_src, cfg["data"])
+    cfg = with_output_affine(cfg, stats)
     write_model_json(run_dir, cfg, spec, stats, input_size)
 
     steps_per_epoch = len(train_src) // bs

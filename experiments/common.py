@@ -1,0 +1,152 @@
+"""What every experiment shares: config/CLI plumbing, cached stages, run provenance, atomic writes."""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+
+import configs
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def base_parser(description: str, default_preset: str = "quick") -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--preset", default=default_preset, choices=configs.PRESETS)
+    ap.add_argument("--out", default=None, help="results folder (default: results/<experiment>-<preset>)")
+    ap.add_argument("--data", default=None, help="dataset folder (default: data/<preset>, made if missing)")
+    ap.add_argument("--force", action="store_true", help="redo cached stages even when their config matches")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="config override, e.g. train.epochs=2 (repeatable)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    return ap
+
+
+def config_from_args(args) -> dict:
+    return configs.get(args.preset, dict(configs.parse_override(s) for s in args.set))
+
+
+def git_commit() -> str:
+    """HEAD's hash, with "-dirty" when tracked files differ from it (numbers then are not from a commit)."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+                               capture_output=True, text=True, check=True).stdout.strip()
+        return head + ("-dirty" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def fingerprint(*parts) -> str:
+    """Short stable hash of JSON-able parts (configs, names, seeds): the key of a cached stage."""
+    blob = json.dumps(parts, sort_keys=True, default=lambda o: list(o) if isinstance(o, tuple) else str(o))
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def write_json(path, obj) -> None:
+    """Write JSON atomically (tmp + rename): a kill never leaves a half-written results file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(json.dumps(obj, indent=1, default=_jsonable))
+    os.replace(tmp, path)
+
+
+def write_text(path, text: str) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def read_json(path):
+    path = Path(path)
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _jsonable(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (tuple, set)):
+        return list(o)
+    return str(o)
+
+
+def ensure_data(cfg: dict, data_dir=None, force: bool = False, progress: bool = True) -> Path:
+    """The preset's simulated dataset, generated on first use and reused after (same config)."""
+    from ffjax.sim import dataset
+
+    root = Path(data_dir or ROOT / "data" / cfg["preset"]).absolute()
+    dataset.generate(cfg, root, force=force, progress=progress)
+    return root
+
+
+class Stage:
+    """A cached unit of work in a folder: done when `stage.json` holds the same key and status "done".
+
+    A folder with another key is cleared before the work is redone; one with the same key but not
+    done is handed back for resuming (partial work is continued, finished work is not redone).
+    """
+
+    def __init__(self, folder, key: str, force: bool = False):
+        self.folder, self.key = Path(folder).absolute(), key
+        self.file = self.folder / "stage.json"
+        info = read_json(self.file) or {}
+        if force or (info and info.get("key") != key):
+            if self.folder.exists():
+                shutil.rmtree(self.folder)
+            info = {}
+        self.done = info.get("status") == "done"
+        self.partial = bool(info) and not self.done
+        self.folder.mkdir(parents=True, exist_ok=True)
+        if not info:
+            write_json(self.file, {"key": key, "status": "started", "started": time.time()})
+
+    def finish(self, **extra) -> None:
+        write_json(self.file, {"key": self.key, "status": "done", "finished": time.time(), **extra})
+        self.done = True
+
+
+def mean_std(values) -> dict:
+    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], np.float64)
+    if len(v) == 0:
+        return {"mean": float("nan"), "std": float("nan"), "n": 0}
+    return {"mean": float(v.mean()), "std": float(v.std(ddof=1)) if len(v) > 1 else 0.0, "n": int(len(v))}
+
+
+def fmt(ms: dict | None, digits: int = 1) -> str:
+    """'4.2 ± 0.3' (or '4.2' for one seed) from a mean_std dict."""
+    if not ms or not np.isfinite(ms.get("mean", float("nan"))):
+        return "–"
+    if ms.get("n", 1) > 1:
+        return f"{ms['mean']:.{digits}f} ± {ms['std']:.{digits}f}"
+    return f"{ms['mean']:.{digits}f}"
+
+
+def md_table(header: list[str], rows: list[list[str]]) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(out) + "\n"
+
+
+def write_csv(path, header: list[str], rows: list[list]) -> None:
+    import csv
+    import io
+
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(header)
+    w.writerows(rows)
+    write_text(path, buf.getvalue())

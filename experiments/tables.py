@@ -1,0 +1,285 @@
+"""Tables I-III from per-run evaluations: aggregation over seeds, findings, markdown, CSV and plots."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from experiments import common
+from experiments import paper_numbers as P
+from ffjax import registry
+
+
+def _cell(runs: list[dict]) -> dict:
+    """mean/std over seeds of nl1, plus the seeds' mean per-axis MAE in newtons."""
+    out = common.mean_std([r["nl1"] for r in runs])
+    out["mae_n"] = np.mean([r["mae_n"] for r in runs], axis=0).round(4).tolist()
+    out["nl1_axes"] = np.mean([r["nl1_axes"] for r in runs], axis=0).round(3).tolist()
+    return out
+
+
+def aggregate(per_run: dict) -> dict:
+    """{method: [eval result per seed]} -> the results.json tables (each cell mean ± std over seeds)."""
+    t1, t2, t3 = {}, {}, {}
+    for method, runs in per_run.items():
+        objs = list(runs[0]["table1"])
+        t1[method] = {o: _cell([r["table1"][o] for r in runs]) for o in objs}
+        t1[method]["mean"] = common.mean_std([np.mean([r["table1"][o]["nl1"] for o in objs]) for r in runs])
+        sensors = list(runs[0]["table2"])
+        t2[method] = {P.sensor_label(s): _cell([r["table2"][s] for r in runs]) for s in sensors}
+        t2[method]["mean"] = common.mean_std([np.mean([r["table2"][s]["nl1"] for s in P.SENSORS]) for r in runs])
+        t3[method] = {}
+        for target in runs[0]["table3"]:
+            cal = [r["table3"][target] for r in runs]
+            t3[method][P.sensor_label(target)] = {
+                "layers": cal[0]["layers"],
+                "before": _cell([c["before"] for c in cal]),
+                "after": _cell([c["after"] for c in cal]),
+                "others_before": common.mean_std([c["others_before"] for c in cal]),
+                "others_after": common.mean_std([c["others_after"] for c in cal]),
+                "degradation_pct": common.mean_std([c["degradation_pct"] for c in cal]),
+            }
+    return {"table1": t1, "table2": t2, "table3": t3}
+
+
+def _m(x) -> float:
+    return float(x["mean"]) if isinstance(x, dict) else float("nan")
+
+
+def _name(method: str) -> str:
+    try:
+        return registry.get(method).paper_name
+    except KeyError:
+        return method
+
+
+def findings(results: dict) -> dict:
+    """One plain sentence per table: does the paper's finding (ordering, gaps) show in our numbers?"""
+    t1, t2, t3 = results["table1"], results["table2"], results["table3"]
+    out = {}
+
+    def order(table):
+        return sorted(table, key=lambda m: _m(table[m]["mean"]))
+
+    def says(claim: str, holds: bool | None, detail: str) -> str:
+        verdict = "not measured" if holds is None else ("reproduces" if holds else "does NOT reproduce")
+        return f"{claim}: {verdict} ({detail})."
+
+    def has(table, *ms):
+        return all(m in table for m in ms)
+
+    rank1 = order(t1)
+    ranked = ", ".join(f"{_name(m)} {_m(t1[m]['mean']):.1f}%" for m in rank1)
+    s = [f"Table I ranking here (best first): {ranked}; "
+         f"paper: DINO RD 4.2%, DINO R 5.2%, ResNet RD 5.3%, DINO_F RD 8.5%."]
+    if has(t1, "dino_rd", "dino_r"):
+        d, r = _m(t1["dino_rd"]["mean"]), _m(t1["dino_r"]["mean"])
+        s.append(says("Depth decoder helps on unseen objects (DINO RD < DINO R)", d < r, f"{d:.1f}% vs {r:.1f}%"))
+    if has(t1, "dino_f_rd", "dino_rd"):
+        f, d = _m(t1["dino_f_rd"]["mean"]), _m(t1["dino_rd"]["mean"])
+        s.append(says("Fine-tuning beats a frozen backbone (DINO RD < DINO_F RD)", d < f, f"{d:.1f}% vs {f:.1f}%"))
+    if has(t1, "dino_rd", "resnet_rd"):
+        d, r = _m(t1["dino_rd"]["mean"]), _m(t1["resnet_rd"]["mean"])
+        s.append(says("ViT beats ResNet (DINO RD < ResNet RD)", d < r, f"{d:.1f}% vs {r:.1f}%"))
+    out["table1"] = " ".join(s)
+
+    rank2 = order(t2)
+    ranked = ", ".join(f"{_name(m)} {_m(t2[m]['mean']):.1f}%" for m in rank2)
+    s = [f"Table II mean over 9 GelSight units x gels (best first): {ranked}; "
+         f"paper: DINO RD 5.4%, DINO R 5.8%, ResNet RD 6.0%, DINO_F R 8.8%."]
+    if rank2:
+        train_cell = {m: _m(t2[m]["mini-1/gel-1"]) for m in t2}
+        other = {m: np.mean([_m(t2[m][P.sensor_label(k)]) for k in P.SENSORS[1:]]) for m in t2}
+        grows = all(other[m] > train_cell[m] for m in t2)
+        s.append(says("Error grows away from the training sensor/gel (all methods)", grows,
+                      "; ".join(f"{_name(m)} {train_cell[m]:.1f}% -> {other[m]:.1f}%" for m in t2)))
+    if has(t2, "dino_f_r"):
+        s.append(says("The frozen backbone (DINO_F R) is worst", rank2[-1] == "dino_f_r",
+                      f"worst here: {_name(rank2[-1])}"))
+    if has(t2, "dino_rd"):
+        s.append(says("DINO RD has the lowest mean", rank2[0] == "dino_rd", f"lowest here: {_name(rank2[0])}"))
+    out["table2"] = " ".join(s)
+
+    s = []
+    if t3:
+        improves = {m: all(_m(c["after"]) < _m(c["before"]) for c in t3[m].values()) for m in t3}
+        n_cal = results["config"]["data"]["calib_samples"]
+        s.append(says(f"Calibration with {n_cal} Big Sphere presses lowers the target sensor's error",
+                      all(improves.values()), ", ".join(f"{_name(m)}: {'yes' if v else 'not always'}"
+                                                         for m, v in improves.items())))
+        if all("digit" in t3[m] for m in t3):
+            best = min(t3, key=lambda m: _m(t3[m]["digit"]["after"]))
+            s.append(says("DINO RD is best on DIGIT after calibration", best == "dino_rd" if "dino_rd" in t3 else None,
+                          f"best here: {_name(best)} {_m(t3[best]['digit']['after']):.1f}%"))
+        deg = {m: np.mean([_m(c["degradation_pct"]) for k, c in t3[m].items() if k != "digit"]) for m in t3}
+        least = min(deg, key=deg.get)
+        s.append(says("DINO RD's uncalibrated sensors degrade least after a GelSight calibration (paper 4% vs "
+                      "12-25%)", least == "dino_rd" if "dino_rd" in deg else None,
+                      ", ".join(f"{_name(m)} {v:+.1f}%" for m, v in deg.items())))
+    out["table3"] = " ".join(s)
+    return out
+
+
+def _paper(table: dict, method: str, i: int) -> str:
+    v = table.get(method)
+    return f"{v[i]:.1f}" if v else "–"
+
+
+def table1_md(results: dict) -> tuple[str, list, list]:
+    t1 = results["table1"]
+    objs = [o for o in P.OBJECTS if any(o in t1[m] for m in t1)]
+    labels = [P.OBJECT_LABELS[P.OBJECTS.index(o)] for o in objs]
+    header = ["Method"] + labels + ["Mean", "Paper mean"]
+    rows, csv_rows = [], []
+    for m in t1:
+        rows.append([_name(m)] + [common.fmt(t1[m].get(o)) for o in objs] + [common.fmt(t1[m]["mean"]),
+                                                                              _paper(P.TABLE1, m, 10)])
+        csv_rows.append([m] + [_m(t1[m].get(o)) for o in objs] + [_m(t1[m]["mean"])])
+    paper_rows = [[f"paper: {_name(m)}"] + [f"{v:.1f}" for v in P.TABLE1[m][:10]] + [f"{P.TABLE1[m][10]:.1f}", ""]
+                  for m in P.TABLE1]
+    text = (f"# Table I: unseen objects (normalized L1 %, mean ± std over {len(results['seeds'])} seed(s))\n\n"
+            + common.md_table(header, rows) + "\nThe paper's numbers (real GelSight Mini data):\n\n"
+            + common.md_table(header, paper_rows) + "\n" + results["findings"]["table1"] + "\n")
+    return text, ["method"] + list(objs) + ["mean"], csv_rows
+
+
+def table2_md(results: dict) -> tuple[str, list, list]:
+    t2 = results["table2"]
+    keys = [P.sensor_label(s) for s in P.SENSORS]
+    extra = ["digit"] if any("digit" in t2[m] for m in t2) else []
+    header = ["Method"] + [k.replace("mini-", "S").replace("/gel-", " G") for k in keys] + ["Mean", "Paper mean"]
+    header += ["DIGIT (not in paper's Table II)"] * bool(extra)
+    rows, csv_rows = [], []
+    for m in t2:
+        rows.append([_name(m)] + [common.fmt(t2[m].get(k)) for k in keys] + [common.fmt(t2[m]["mean"]),
+                                                                             _paper(P.TABLE2, m, 9)]
+                    + [common.fmt(t2[m].get(k)) for k in extra])
+        csv_rows.append([m] + [_m(t2[m].get(k)) for k in keys + extra] + [_m(t2[m]["mean"])])
+    paper_rows = [[f"paper: {_name(m)}"] + [f"{v:.1f}" for v in P.TABLE2[m][:9]] + [f"{P.TABLE2[m][9]:.1f}", ""]
+                  + [""] * bool(extra) for m in P.TABLE2]
+    text = (f"# Table II: trained on mini-1 gel 1, tested on every unit x gel (normalized L1 %, "
+            f"{len(results['seeds'])} seed(s))\n\nS = GelSight Mini unit, G = gel.\n\n"
+            + common.md_table(header, rows) + "\nThe paper's numbers:\n\n" + common.md_table(header, paper_rows)
+            + "\n" + results["findings"]["table2"] + "\n")
+    return text, ["method"] + keys + extra + ["mean"], csv_rows
+
+
+def table3_md(results: dict) -> tuple[str, list, list]:
+    t3 = results["table3"]
+    targets = [P.sensor_label(t) for t in P.CALIB_TARGETS]
+    header = ["Target (layers tuned)"] + [f"{_name(m)} before → after" for m in t3] + \
+             [f"paper {_name(m)}" for m in t3 if m in P.TABLE3]
+    rows, csv_rows = [], []
+    for i, t in enumerate(targets):
+        layers = next((t3[m][t]["layers"] for m in t3 if t in t3[m]), "")
+        rows.append([f"{t} ({layers})"]
+                    + [f"{common.fmt(t3[m][t]['before'])} → **{common.fmt(t3[m][t]['after'])}**" if t in t3[m] else "–"
+                       for m in t3]
+                    + [f"{P.TABLE3[m][i]:.1f}" for m in t3 if m in P.TABLE3])
+        csv_rows += [[m, t, t3[m][t]["layers"], _m(t3[m][t]["before"]), _m(t3[m][t]["after"]),
+                      _m(t3[m][t]["others_before"]), _m(t3[m][t]["others_after"]), _m(t3[m][t]["degradation_pct"])]
+                     for m in t3 if t in t3[m]]
+    deg_header = ["Calibrated on"] + [_name(m) for m in t3]
+    deg_rows = [[t] + [f"{common.fmt(t3[m][t]['others_before'])} → {common.fmt(t3[m][t]['others_after'])} "
+                       f"({common.fmt(t3[m][t]['degradation_pct'])}%)" if t in t3[m] else "–" for m in t3]
+                for t in targets]
+    text = (f"# Table III: calibration with {results['config']['data']['calib_samples']} Big Sphere presses "
+            f"(normalized L1 % on the target's Table II test set; {len(results['seeds'])} seed(s))\n\n"
+            + common.md_table(header, rows)
+            + "\nThe other (uncalibrated) GelSight units after each calibration: mean error before → after "
+              "(relative change). Paper: +4% for DINO RD vs +12-25% for the others.\n\n"
+            + common.md_table(deg_header, deg_rows) + "\n" + results["findings"]["table3"] + "\n")
+    return text, ["method", "target", "layers", "before", "after", "others_before", "others_after",
+                  "degradation_pct"], csv_rows
+
+
+def plot_all(results: dict, out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    methods = list(results["table1"])
+    colors = plt.cm.tab10(np.arange(len(methods)))
+
+    def bars(ax, groups, getter, paper=None):
+        width = 0.8 / len(methods)
+        x = np.arange(len(groups))
+        for i, m in enumerate(methods):
+            vals = [getter(m, g) for g in groups]
+            ax.bar(x + i * width, [_m(v) for v in vals], width, yerr=[v["std"] if v else 0 for v in vals],
+                   label=_name(m), color=colors[i], capsize=2)
+            if paper and m in paper:
+                ax.scatter(x + i * width, paper[m][: len(groups)], marker="_", s=120, color="k", zorder=3)
+        ax.set_xticks(x + 0.4 - width / 2)
+        ax.set_ylabel("normalized L1 error (%)")
+        ax.legend(fontsize=7)
+
+    t1 = results["table1"]
+    objs = [o for o in P.OBJECTS if o in t1[methods[0]]] + ["mean"]
+    fig, ax = plt.subplots(figsize=(12, 4))
+    bars(ax, objs, lambda m, g: t1[m].get(g), {m: v for m, v in P.TABLE1.items()})
+    ax.set_xticklabels([o.replace("_", " ") for o in objs], rotation=30, ha="right")
+    ax.set_title("Table I: unseen objects (bars: ours; black ticks: the paper)")
+    paths.append(_save(fig, out / "table1.png"))
+
+    t2 = results["table2"]
+    keys = [P.sensor_label(s) for s in P.SENSORS] + ["mean"]
+    fig, ax = plt.subplots(figsize=(12, 4))
+    bars(ax, keys, lambda m, g: t2[m].get(g), {m: v for m, v in P.TABLE2.items()})
+    ax.set_xticklabels(keys, rotation=30, ha="right")
+    ax.set_title("Table II: trained on mini-1/gel-1 (bars: ours; black ticks: the paper)")
+    paths.append(_save(fig, out / "table2.png"))
+
+    t3 = results["table3"]
+    targets = [P.sensor_label(t) for t in P.CALIB_TARGETS]
+    fig, axes = plt.subplots(1, len(targets), figsize=(12, 3.6), sharey=False)
+    for ax, t in zip(np.atleast_1d(axes), targets):
+        x = np.arange(len(methods))
+        ax.bar(x - 0.2, [_m(t3[m][t]["before"]) for m in methods], 0.4, label="before", color="0.7")
+        ax.bar(x + 0.2, [_m(t3[m][t]["after"]) for m in methods], 0.4, label="after", color=colors)
+        paper_x = [i for i, m in enumerate(methods) if m in P.TABLE3]
+        ax.scatter([i + 0.2 for i in paper_x], [P.TABLE3[methods[i]][targets.index(t)] for i in paper_x],
+                   marker="_", s=120, color="k", zorder=3, label="paper (after)")
+        ax.set_xticks(x)
+        ax.set_xticklabels([_name(m) for m in methods], rotation=30, ha="right", fontsize=7)
+        ax.set_title(f"{t} ({t3[methods[0]][t]['layers']})")
+    np.atleast_1d(axes)[0].set_ylabel("normalized L1 error (%)")
+    np.atleast_1d(axes)[0].legend(fontsize=7)
+    fig.suptitle(f"Table III: calibration with {results['config']['data']['calib_samples']} Big Sphere presses")
+    paths.append(_save(fig, out / "table3.png"))
+    return paths
+
+
+def _save(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.stem}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    tmp.replace(path)
+    return path
+
+
+def write_all(results: dict, out: Path) -> None:
+    out = Path(out)
+    for name, fn in (("table1", table1_md), ("table2", table2_md), ("table3", table3_md)):
+        text, header, rows = fn(results)
+        common.write_text(out / f"{name}.md", text)
+        common.write_csv(out / f"{name}.csv", header, rows)
+    plot_all(results, out)
+    common.write_json(out / "results.json", results)
+
+
+def console_summary(results: dict) -> str:
+    lines = [f"preset {results['preset']}, seeds {results['seeds']}, commit {results['commit'][:12]}"]
+    for m in results["table1"]:
+        t3 = results["table3"][m]
+        cal = ", ".join(f"{t} {_m(c['after']):.1f}%" for t, c in t3.items())
+        lines.append(f"  {_name(m):10s} Table I {_m(results['table1'][m]['mean']):5.1f}%   "
+                     f"Table II {_m(results['table2'][m]['mean']):5.1f}%   Table III {cal}")
+    lines += ["", *results["findings"].values()]
+    return "\n".join(lines)

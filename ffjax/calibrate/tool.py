@@ -1,0 +1,153 @@
+"""`python -m ffjax.calibrate`: fine-tune a checkpoint's regressor on a user's labelled frames (paper IV-B).
+
+    python -m ffjax.calibrate --checkpoint RUN --data calib/data.csv --out RUN_sensor2 [--layers last|regressor]
+        [--steps N] [--lr X] [--holdout 0.2] [--background FILE] [--seed 0]
+
+--data: a CSV in the release layout (tactile, optional depth, FT "Fx Fy Fz Tx Ty Tz"; paths relative to the
+CSV; background.png beside it or --background), e.g. what `python -m ffjax.calibrate.record` writes, or a
+shard folder. A seeded random --holdout fraction is kept aside; the rest trains:
+  --layers last       the final Linear(->3) and the LayerNorm before it: another unit of the same sensor
+                      type (GelSight Mini -> another Mini or another gel), the paper's default
+  --layers regressor  the whole regressor head: a different sensor type (e.g. DIGIT)
+The backbone is frozen, so its features are computed once and only the head trains (ffjax.calibrate.core).
+Reported before and after on the held-out part: normalized L1 % (per axis, divided by the ORIGINAL training
+force range, as everywhere in ffjax) and MAE in newtons. --out gets a new self-describing folder
+(model.json, variables.msgpack, calibration.json, background.png) that inference.load / ffjax.live /
+ffjax.export accept; its expected frame size is the calibration frames'. The checkpoint is never modified.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from ffjax import data as fdata
+from ffjax import inference, metrics
+from ffjax.calibrate import core
+from ffjax.data.sources import write_rgb
+
+
+def split_indices(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(fit, held-out) index arrays from a seeded permutation; at least one of each when n >= 2."""
+    if not 0 <= holdout < 1:
+        raise ValueError(f"holdout must be in [0, 1), got {holdout}")
+    perm = np.random.default_rng(seed).permutation(n)
+    k = 0 if holdout == 0 or n < 2 else int(np.clip(round(holdout * n), 1, n - 1))
+    return np.sort(perm[k:]), np.sort(perm[:k])
+
+
+def _check_out(out: Path, checkpoint: Path, overwrite: bool) -> None:
+    if out.resolve() == checkpoint.resolve() or checkpoint.resolve() in out.resolve().parents:
+        raise ValueError(f"--out {out} must be a new folder outside the checkpoint {checkpoint}")
+    if out.exists() and any(out.iterdir()) and not overwrite:
+        raise FileExistsError(f"{out} exists and is not empty: choose a new --out (or --overwrite)")
+
+
+def calibrate(checkpoint, data, out, layers: str = "last", steps: int | None = None, lr: float | None = None,
+              holdout: float | None = None, seed: int = 0, background=None, batch_size: int | None = None,
+              which: str = "best", overwrite: bool = False, log=print) -> dict:
+    """Fine-tune, evaluate before/after on a held-out part, write a new checkpoint folder; returns the report."""
+    checkpoint, out = Path(checkpoint), Path(out)
+    if layers not in core.LAYERS:
+        raise ValueError(f"--layers must be one of {core.LAYERS}, got {layers!r}")
+    _check_out(out, checkpoint, overwrite)
+    ckpt = inference.read_checkpoint(checkpoint, which)
+    cc = ckpt.cfg.get("calibrate", {})
+    steps = int(cc.get("steps", 200) if steps is None else steps)
+    lr = float(cc.get("lr", 1e-4) if lr is None else lr)
+    holdout = float(cc.get("holdout", 0.2) if holdout is None else holdout)
+    batch_size = int(cc.get("batch_size", 32) if batch_size is None else batch_size)
+
+    source = fdata.open_split(data, background=background)
+    if len(source) == 0:
+        raise ValueError(f"{data}: no labelled frames")
+    first = source[0]
+    frame = tuple(first["image"].shape[:2])
+    if frame != tuple(ckpt.frame_size):
+        log(f"note: calibration frames are {frame[0]}x{frame[1]}, the checkpoint's {ckpt.frame_size[0]}x"
+            f"{ckpt.frame_size[1]} ({ckpt.frame_size_source}); the new checkpoint expects {frame[0]}x{frame[1]}"
+            + ("" if layers == "regressor" else ". For a different sensor type use --layers regressor"))
+    arrays = fdata.load_arrays(source, ckpt.stats, ckpt.input_size)
+    y = arrays["force"]
+    feats = core.features(ckpt.build_model(), ckpt.variables, arrays["image"], batch_size=min(64, len(y)))
+    fit, hold = split_indices(len(y), holdout, seed)
+    if len(hold) == 0:
+        log("warning: no held-out frames (holdout 0 or a single frame): errors below are on the fitting set")
+        hold = fit
+    head = ckpt.cfg["model"]["regressor"]
+    reg = jax.tree.map(np.asarray, ckpt.variables["params"]["regressor"])  # as numpy, like fit_regressor's output:
+    # predict_from_features then compiles once for both (committed device arrays would be another cache entry)
+    lo, hi = ckpt.stats.force_min, ckpt.stats.force_max
+    # predictions for all frames at once, then indexed: one compiled shape for before and after
+    before = metrics.summarize(core.predict_from_features(head, reg, feats)[hold], y[hold], lo, hi)
+    new_reg = core.fit_regressor(head, reg, feats[fit], y[fit], layers=layers, steps=steps, lr=lr,
+                                 batch_size=batch_size, seed=seed)
+    pred = core.predict_from_features(head, new_reg, feats)
+    after = metrics.summarize(pred[hold], y[hold], lo, hi)
+    after_fit = metrics.summarize(pred[fit], y[fit], lo, hi)
+    report = {
+        "checkpoint": str(checkpoint), "data": str(data), "layers": layers, "steps": steps, "lr": lr,
+        "batch_size": batch_size, "holdout": holdout, "seed": seed, "n": int(len(y)), "n_fit": int(len(fit)),
+        "n_holdout": int(len(hold)), "frame_size": list(frame), "force_range_used": {"min": list(lo), "max": list(hi)},
+        "holdout_before": before, "holdout_after": after, "fit_after": after_fit,
+        "calibration_force_range": {"min": y.min(0).tolist(), "max": y.max(0).tolist()},
+    }
+    variables = core.with_regressor(ckpt.variables, new_reg)
+    inference.save_bundle(out, ckpt, variables, frame_size=frame, calibration=report)
+    (out / "calibration.json").write_text(json.dumps(report, indent=2) + "\n")
+    bg = getattr(source, "background", None)
+    write_rgb(out / "background.png", bg if bg is not None else first["background"])
+    log(format_report(report))
+    log(f"wrote {out} (python -m ffjax.live --checkpoint {out} ...)")
+    return report
+
+
+def format_report(r: dict) -> str:
+    def line(name, m):
+        ax = " ".join(f"{v:6.2f}" for v in m["nl1_axes"])
+        mae = " ".join(f"{v:6.3f}" for v in m["mae_n"])
+        return f"  {name:<8} {m['nl1']:7.2f}   ({ax})   {mae}"
+
+    return "\n".join([
+        f"calibrated layers={r['layers']} on {r['n_fit']} frames, {r['steps']} steps, lr {r['lr']:g}; "
+        f"held-out {r['n_holdout']} frames:",
+        "             nL1 %   (Fx     Fy     Fz)      MAE N (Fx     Fy     Fz)",
+        line("before", r["holdout_before"]),
+        line("after", r["holdout_after"]),
+        "  (nL1: mean |error| / the training force range per axis, in %)",
+    ])
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m ffjax.calibrate", description=__doc__.splitlines()[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog="\n".join(__doc__.splitlines()[1:]))
+    p.add_argument("--checkpoint", required=True, help="training run, calibrated or converted folder")
+    p.add_argument("--data", required=True, help="release-layout CSV (or a folder holding data.csv / shards)")
+    p.add_argument("--out", required=True, help="new folder for the calibrated checkpoint")
+    p.add_argument("--layers", default="last", choices=core.LAYERS)
+    p.add_argument("--steps", type=int, default=None, help="optimizer steps (default: cfg calibrate.steps)")
+    p.add_argument("--lr", type=float, default=None, help="Adam learning rate (default: cfg calibrate.lr)")
+    p.add_argument("--holdout", type=float, default=None, help="held-out fraction (default: cfg, 0.2)")
+    p.add_argument("--batch-size", type=int, default=None)
+    p.add_argument("--background", default=None, help="no-contact frame, if not background.png beside the CSV")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--which", default="best", choices=("best", "latest"))
+    p.add_argument("--overwrite", action="store_true", help="allow a non-empty --out")
+    return p
+
+
+def main(argv=None) -> int:
+    a = build_parser().parse_args(argv)
+    try:
+        calibrate(a.checkpoint, a.data, a.out, a.layers, a.steps, a.lr, a.holdout, a.seed, a.background,
+                  a.batch_size, a.which, a.overwrite)
+    except (ValueError, FileExistsError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0

@@ -1,0 +1,171 @@
+"""Export a predictor as one serialized `jax.export` function: raw frames in, forces out.
+
+    python -m ffjax.export --checkpoint RUN --out force.jaxexport [--batch 1] [--platforms cpu,cuda]
+
+writes `force.jaxexport` (StableHLO with the weights baked in) and `force.jaxexport.json` (frame size,
+channel order, force range, input/output description). The whole preprocessing is inside the function:
+background subtraction (clip(img - bg + 127)), pad to square, resize, /255, normalization. The resize is
+written as two small matrix products whose weights are taken from cv2 at export time (the INTER_AREA /
+INTER_LINEAR kernels `ffjax.data.preprocess_image` uses), so the exported function matches the Predictor
+to float32 rounding (tests check |difference| < 1e-4 N). --batch 0 exports a symbolic batch size.
+
+Running it needs only jax (no ffjax, flax or training code):
+
+    import json, numpy as np
+    from jax import export
+    fn = export.deserialize(open("force.jaxexport", "rb").read())
+    info = json.load(open("force.jaxexport.json"))          # frame_size, channels ("RGB"), force range
+    forces = np.asarray(fn.call(frames, background))        # (B, H, W, 3), (H, W, 3) uint8 RGB -> (B, 3) N
+
+(or `ffjax.export.load(path)(frames, background)`, which also checks shapes and flags out-of-range forces).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ffjax import inference
+
+FORMAT = "ffjax.export/1"
+
+
+def resize_matrix(side: int, size: int) -> np.ndarray:
+    """(size, side) matrix R with R @ v == cv2.resize of v from side to size samples, using the kernel
+    `ffjax.data.preprocess` picks (INTER_AREA when shrinking, INTER_LINEAR when enlarging). Both are
+    separable, so a square resize is R @ X @ R.T."""
+    if side == size:
+        return np.eye(size, dtype=np.float32)
+    interp = cv2.INTER_AREA if side > size else cv2.INTER_LINEAR
+    # resizing the identity along x maps unit vector e_i to column i of R
+    return np.ascontiguousarray(cv2.resize(np.eye(side, dtype=np.float32), (size, side), interpolation=interp).T)
+
+
+def preprocess_fn(frame_size, input_size: int, mean, std):
+    """jnp version of data.preprocess_image for fixed (H, W): uint8 (B,H,W,3) + (H,W,3) -> (B,S,S,3)."""
+    h, w = frame_size
+    side = max(h, w)
+    r = resize_matrix(side, input_size)
+    top, left = (side - h) // 2, (side - w) // 2
+    # padding with 0 adds nothing to a weighted sum: fold it into the resize matrices
+    ry, rx = jnp.asarray(r[:, top:top + h]), jnp.asarray(r[:, left:left + w])
+    mean, std = jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32)
+
+    def fn(images, background):
+        nobg = jnp.clip(images.astype(jnp.int32) - background.astype(jnp.int32) + 127, 0, 255)
+        x = jnp.einsum("sh,bhwc,tw->bstc", ry, nobg.astype(jnp.float32), rx, precision="highest")
+        return (x * np.float32(1 / 255) - mean) / std
+
+    return fn
+
+
+def forces_fn(pred: inference.Predictor):
+    """f(images uint8 (B,H,W,3) RGB, background uint8 (H,W,3) RGB) -> forces float32 (B,3), weights closed over."""
+    pre = preprocess_fn(pred.frame_size, pred.input_size, pred.stats.mean, pred.stats.std)
+    model, variables = pred.model, jax.tree.map(jnp.asarray, pred.checkpoint.variables)
+
+    def fn(images, background):
+        return model.apply(variables, pre(images, background), train=False)["force"]
+
+    return fn
+
+
+def export(pred: inference.Predictor, batch: int = 1, platforms=None) -> jax.export.Exported:
+    """The jax.export.Exported of `forces_fn`; batch 0 = symbolic batch size."""
+    h, w = pred.frame_size
+    b = jax.export.symbolic_shape("b")[0] if batch == 0 else int(batch)
+    args = (jax.ShapeDtypeStruct((b, h, w, 3), jnp.uint8), jax.ShapeDtypeStruct((h, w, 3), jnp.uint8))
+    kw = {"platforms": tuple(platforms)} if platforms else {}
+    return jax.export.export(jax.jit(forces_fn(pred)), **kw)(*args)
+
+
+def sidecar_path(path) -> Path:
+    return Path(f"{path}.json")
+
+
+def save(pred: inference.Predictor, path, batch: int = 1, platforms=None) -> Path:
+    """Write the serialized function to `path` and its description to `path`.json; returns `path`."""
+    exp = export(pred, batch, platforms)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(exp.serialize())
+    info = {
+        "format": FORMAT,
+        "inputs": {"images": f"uint8 ({'B' if batch == 0 else batch}, H, W, 3) {inference.CHANNELS}",
+                   "background": f"uint8 (H, W, 3) {inference.CHANNELS}, the no-contact frame"},
+        "output": "float32 (B, 3): Fx, Fy, Fz in newtons",
+        "batch": None if batch == 0 else int(batch),
+        "platforms": list(exp.platforms),
+        "checkpoint": pred.describe() | {"path": pred.checkpoint.path},
+        "frame_size": list(pred.frame_size),
+        "channels": inference.CHANNELS,
+        "force_min": pred.force_min.tolist(),
+        "force_max": pred.force_max.tolist(),
+        "jax_version": jax.__version__,
+    }
+    sidecar_path(path).write_text(json.dumps(info, indent=2) + "\n")
+    return path
+
+
+class ExportedPredictor:
+    """A loaded export: call(images, background) -> forces (B, 3) numpy; last_out_of_range like Predictor."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.exported = jax.export.deserialize(bytearray(self.path.read_bytes()))
+        side = sidecar_path(self.path)
+        self.info = json.loads(side.read_text()) if side.is_file() else {}
+        self.last_out_of_range = np.zeros((0,), bool)
+
+    def __call__(self, images, background) -> np.ndarray:
+        images, background = np.asarray(images), np.asarray(background)
+        if images.ndim == 3:
+            images = images[None]
+        fs = self.info.get("frame_size")
+        if fs and (tuple(images.shape[1:3]) != tuple(fs) or tuple(background.shape[:2]) != tuple(fs)):
+            raise ValueError(f"frames {images.shape[1:3]} / background {background.shape[:2]} must be "
+                             f"{tuple(fs)} (HxW) for this export")
+        if images.dtype != np.uint8 or background.dtype != np.uint8:
+            raise TypeError("images and background must be uint8 RGB")
+        forces = np.asarray(self.exported.call(images, background), np.float32)
+        if "force_min" in self.info:
+            lo, hi = np.minimum(self.info["force_min"], 0), np.maximum(self.info["force_max"], 0)
+            tol = 0.05 * (hi - lo)
+            self.last_out_of_range = np.any((forces < lo - tol) | (forces > hi + tol), axis=1)
+        return forces
+
+
+def load(path) -> ExportedPredictor:
+    return ExportedPredictor(path)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m ffjax.export", description=__doc__.splitlines()[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog="\n".join(__doc__.splitlines()[1:]))
+    p.add_argument("--checkpoint", required=True, help="training run, calibrated or converted folder")
+    p.add_argument("--out", required=True, help="output file (a .json sidecar is written beside it)")
+    p.add_argument("--batch", type=int, default=1, help="fixed batch size (0: symbolic); default 1")
+    p.add_argument("--which", default="best", choices=("best", "latest"))
+    p.add_argument("--platforms", default=None,
+                   help="comma-separated lowering targets, e.g. cpu,cuda (default: this machine's)")
+    p.add_argument("--frame-size", default=None, help="HxW of the sensor frames, if the checkpoint lacks it")
+    a = p.parse_args(argv)
+    fs = tuple(int(v) for v in a.frame_size.lower().split("x")) if a.frame_size else None
+    pred = inference.load(a.checkpoint, a.which, frame_size=fs)
+    plats = a.platforms.split(",") if a.platforms else None
+    path = save(pred, a.out, a.batch, plats)
+    print(f"exported {a.checkpoint} -> {path} (+ {sidecar_path(path).name}); frames {pred.frame_size[0]}x"
+          f"{pred.frame_size[1]} RGB uint8, batch {a.batch or 'symbolic'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,345 @@
+"""Load a checkpoint and predict forces (newtons) from raw sensor frames.
+
+    from ffjax import inference
+    model = inference.load("runs/quick_dino_rd")     # a training run, a calibrated or a converted folder
+    model.set_background(bg)                          # the sensor's no-contact frame, uint8 RGB (H, W, 3)
+    forces = model.predict(frames)                    # (N, H, W, 3) or (H, W, 3) uint8 RGB -> (N, 3) float32 N
+    model.last_out_of_range                           # (N,) bool: outside the training force range
+    depth = model.predict_depth(frames)               # (N, H, W) mm, when the model has a depth head
+
+Channel order is RGB (what `ffjax.data` reads and trains on). Frames straight from OpenCV
+(`cv2.VideoCapture.read`, `cv2.imread`) are BGR: pass `bgr=True` to set_background/predict/predict_depth.
+
+Preprocessing is `ffjax.data.preprocess_image` with the checkpoint's statistics, the same function training
+used (numpy/cv2, once per frame); the network is one jitted apply, compiled once per batch shape.
+
+Folders `load` accepts (`read_checkpoint` tells them apart):
+  training run   RUN/model.json + RUN/best/ (+ checkpoints/), written by `ffjax.train`
+  bundle         DIR/model.json + DIR/variables.msgpack, written by `ffjax.calibrate` (`save_bundle`)
+  converted      DIR/convert.json + DIR/variables.msgpack, written by `python -m ffjax.convert feelanyforce`.
+                 It holds no statistics: the release's are used (RELEASE_STATS: normalization mean/std and
+                 depth range from its code, input 224 from convert.json, force range (-2,-2,0)..(2,2,15) N
+                 approximated from the paper). A `stats.json` (a data.Stats dict) beside it overrides them.
+
+Expected frame size (H, W), the first that applies: the `frame_size` argument; "frame_size" in model.json
+(bundles record it); "frame_size" in a `sensor.json` beside the weights; 240x320 (GelSight Mini) for a
+converted release checkpoint; else the run's cfg["data"]["render_size"] (the simulator frames of its
+preset; `frame_size_source` says "assumed" then). Frames of another size or channel count are refused
+with a message; `strict_size=False` accepts any size that matches the background (a warning is given).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from ffjax import data as fdata
+
+CHANNELS = "RGB"
+BUNDLE_FORMAT = "ffjax.predictor/1"
+MODEL_JSON, VARIABLES, SENSOR_JSON, STATS_JSON = "model.json", "variables.msgpack", "sensor.json", "stats.json"
+RELEASE_FRAME = (240, 320)
+# The FeelAnyForce release's normalization (REFERENCE.md); depth range is min - eps, max + eps, eps 5, in the
+# release's depth units. Force range: approximate, from the paper's dataset description.
+RELEASE_STATS = {
+    "mean": [0.3654, 0.3716, 0.3693],
+    "std": [0.2120, 0.2151, 0.2137],
+    "depth_min": -8.3115 - 5.0,
+    "depth_max": 27.0323 + 5.0,
+    "force_min": [-2.0, -2.0, 0.0],
+    "force_max": [2.0, 2.0, 15.0],
+    "input_size": 224,
+    "depth_eps": 5.0,
+}
+
+
+class ForceRangeWarning(UserWarning):
+    """A prediction lies outside the force range the model was trained on."""
+
+
+@dataclass
+class Checkpoint:
+    """Everything a predictor needs, whichever folder it came from."""
+
+    cfg: dict  # full config (model section used to rebuild the network; calibrate section for defaults)
+    spec: object  # registry.Method
+    stats: fdata.Stats
+    variables: dict
+    input_size: int
+    frame_size: tuple[int, int]
+    frame_size_source: str
+    kind: str  # "run" | "bundle" | "converted"
+    path: str
+    info: dict = field(default_factory=dict)
+
+    def build_model(self):
+        from ffjax import models
+
+        return models.build(self.cfg["model"], self.spec, self.input_size)
+
+
+def _tuples(x):
+    """JSON made tuples into lists; linen module fields must be hashable, so turn them back."""
+    if isinstance(x, dict):
+        return {k: _tuples(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return tuple(_tuples(v) for v in x)
+    return x
+
+
+def _read_json(path: Path) -> dict | None:
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _frame_size(folder: Path, info: dict, override, fallback, fallback_source: str):
+    if override is not None:
+        return tuple(int(v) for v in override), "argument"
+    if info.get("frame_size"):
+        return tuple(int(v) for v in info["frame_size"]), MODEL_JSON
+    sensor = _read_json(folder / SENSOR_JSON)
+    if sensor and sensor.get("frame_size"):
+        return tuple(int(v) for v in sensor["frame_size"]), SENSOR_JSON
+    return tuple(int(v) for v in fallback), fallback_source
+
+
+def read_checkpoint(path, which: str = "best", frame_size=None) -> Checkpoint:
+    """Read a training run, a bundle (model.json + variables.msgpack) or a converted release folder."""
+    from flax import serialization
+
+    import configs
+    from ffjax import registry
+
+    folder = Path(path)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: no such checkpoint folder")
+    info = _read_json(folder / MODEL_JSON)
+    if info is not None and (folder / VARIABLES).is_file():  # bundle
+        variables = serialization.msgpack_restore((folder / VARIABLES).read_bytes())
+        cfg = {**info["cfg"], "model": _tuples(info["cfg"]["model"])}
+        stats = fdata.Stats.from_dict(info["stats"])
+        fs, src = _frame_size(folder, info, frame_size, cfg["data"]["render_size"], "assumed")
+        return Checkpoint(cfg, registry.get(info["method"]), stats, variables, int(info["input_size"]), fs,
+                          src, "bundle", str(folder), info)
+    if info is not None:  # training run
+        from ffjax import train
+
+        cfg, spec, stats, variables = train.load_checkpoint(folder, which)
+        fs, src = _frame_size(folder, info, frame_size, cfg["data"]["render_size"], "assumed")
+        return Checkpoint(cfg, spec, stats, variables, int(info["input_size"]), fs, src, "run", str(folder),
+                          info)
+    if (folder / "convert.json").is_file():
+        from ffjax.convert import store
+
+        meta = store.read_meta(folder)
+        if meta["kind"] != "feelanyforce" or "regressor" not in meta["model"]:
+            raise ValueError(f"{folder} holds converted {meta['kind']} backbone weights, not a force model: "
+                             f"use it to start training (--init), then load the run")
+        model_cfg, variables = store.load(folder)
+        cfg = configs.get("paper")
+        cfg["model"].update(_tuples(model_cfg))
+        size = int(meta.get("input_size", 224))
+        stats_d = _read_json(folder / STATS_JSON) or {**RELEASE_STATS, "input_size": size}
+        stats = fdata.Stats.from_dict(stats_d)
+        fs, src = _frame_size(folder, {}, frame_size, RELEASE_FRAME, "release default (GelSight Mini)")
+        spec = registry.get("dino_rd" if "decoder" in model_cfg else "dino_r")
+        return Checkpoint(cfg, spec, stats, variables, size, fs, src, "converted", str(folder), meta)
+    raise FileNotFoundError(
+        f"{folder}: not a checkpoint folder; expected {MODEL_JSON} (a training run or calibrated bundle) or "
+        f"convert.json + {VARIABLES} (python -m ffjax.convert feelanyforce ...)")
+
+
+def save_bundle(out, ckpt: Checkpoint, variables: dict | None = None, frame_size=None, **extra) -> Path:
+    """Write a self-contained folder (model.json + variables.msgpack) that `load` accepts."""
+    import dataclasses
+
+    from flax import serialization
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    tree = jax.tree.map(np.asarray, ckpt.variables if variables is None else variables)
+    (out / VARIABLES).write_bytes(serialization.msgpack_serialize(tree))
+    info = {
+        "format": BUNDLE_FORMAT,
+        "method": ckpt.spec.name,
+        "spec": dataclasses.asdict(ckpt.spec),
+        "input_size": ckpt.input_size,
+        "frame_size": list(frame_size or ckpt.frame_size),
+        "channels": CHANNELS,
+        "stats": ckpt.stats.to_dict(),
+        "force_range": {"min": list(ckpt.stats.force_min), "max": list(ckpt.stats.force_max)},
+        "cfg": json.loads(json.dumps(ckpt.cfg, default=list)),
+        "parent": {"path": ckpt.path, "kind": ckpt.kind},
+        **extra,
+    }
+    (out / MODEL_JSON).write_text(json.dumps(info, indent=2) + "\n")
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _apply_fns(model):
+    """Jitted force / depth applies, one pair per model config (linen modules hash by their fields), so
+    re-loading a checkpoint of the same architecture reuses the compiled code."""
+    return (jax.jit(lambda v, x: model.apply(v, x, train=False)["force"]),
+            jax.jit(lambda v, x: model.apply(v, x, train=False)["depth"]))
+
+
+class Predictor:
+    """Forces from raw uint8 RGB frames; see the module docstring. Not thread-safe (last_* attributes)."""
+
+    def __init__(self, ckpt: Checkpoint, strict_size: bool = True, range_margin: float = 0.05):
+        self.checkpoint = ckpt
+        self.strict_size = strict_size
+        self.range_margin = float(range_margin)
+        self.model = ckpt.build_model()
+        self.variables = jax.device_put(ckpt.variables)
+        self._force_fn, depth_fn = _apply_fns(self.model)
+        self._depth_fn = depth_fn if ckpt.spec.depth_head else None
+        self.background: np.ndarray | None = None
+        self.last_out_of_range = np.zeros((0,), bool)
+        self.last_timing: dict = {}
+
+    # -- what the checkpoint expects -------------------------------------------------------------------
+    @property
+    def stats(self) -> fdata.Stats:
+        return self.checkpoint.stats
+
+    @property
+    def input_size(self) -> int:
+        """Side of the square model input (after background subtraction, pad, resize)."""
+        return self.checkpoint.input_size
+
+    @property
+    def frame_size(self) -> tuple[int, int]:
+        """(H, W) of the frames the model was trained on (see the module docstring for where it comes from)."""
+        return self.checkpoint.frame_size
+
+    @property
+    def frame_size_source(self) -> str:
+        return self.checkpoint.frame_size_source
+
+    @property
+    def force_min(self) -> np.ndarray:
+        return np.asarray(self.stats.force_min, np.float32)
+
+    @property
+    def force_max(self) -> np.ndarray:
+        return np.asarray(self.stats.force_max, np.float32)
+
+    @property
+    def has_depth(self) -> bool:
+        return self._depth_fn is not None
+
+    @property
+    def method(self) -> str:
+        return self.checkpoint.spec.name
+
+    def describe(self) -> dict:
+        return {"method": self.method, "kind": self.checkpoint.kind, "input_size": self.input_size,
+                "frame_size": list(self.frame_size), "frame_size_source": self.frame_size_source,
+                "channels": CHANNELS, "force_min": self.force_min.tolist(), "force_max": self.force_max.tolist(),
+                "depth_head": self.has_depth}
+
+    # -- inputs ----------------------------------------------------------------------------------------
+    def _check(self, images, bgr: bool, what: str) -> np.ndarray:
+        x = np.asarray(images)
+        if x.dtype != np.uint8:
+            raise TypeError(f"{what} must be uint8 (raw camera pixels), got {x.dtype}")
+        if x.ndim not in (3, 4):
+            raise ValueError(f"{what} must be (H, W, 3) or (N, H, W, 3), got shape {x.shape}")
+        if x.shape[-1] != 3:
+            hint = " (BGRA/RGBA: drop the alpha channel)" if x.shape[-1] == 4 else \
+                " (grayscale: this model needs the sensor's colour frames)"
+            raise ValueError(f"{what} has {x.shape[-1]} channels, the model needs 3 ({CHANNELS}){hint}")
+        hw = tuple(x.shape[-3:-1])
+        if hw != self.frame_size:
+            msg = (f"{what} is {hw[0]}x{hw[1]} (HxW) but this checkpoint was trained on {self.frame_size[0]}x"
+                   f"{self.frame_size[1]} frames (from {self.frame_size_source}); resize/crop the camera frames "
+                   f"to that size, calibrate for this sensor (python -m ffjax.calibrate), or load with "
+                   f"frame_size=/strict_size=False")
+            if self.strict_size:
+                raise ValueError(msg)
+            warnings.warn(msg, stacklevel=3)
+        if bgr:
+            x = x[..., ::-1]
+        return np.ascontiguousarray(x)
+
+    def set_background(self, background, bgr: bool = False) -> None:
+        """The no-contact frame (uint8 (H, W, 3)); re-take it when lighting or the gel changes."""
+        bg = self._check(background, bgr, "background")
+        if bg.ndim != 3:
+            raise ValueError(f"background must be one frame (H, W, 3), got {bg.shape}")
+        self.background = bg
+
+    def preprocess(self, images, bgr: bool = False) -> np.ndarray:
+        """Raw frames -> the model input (N, S, S, 3) float32, exactly as in training."""
+        if self.background is None:
+            raise RuntimeError("no background: call set_background(no_contact_frame) first")
+        x = self._check(images, bgr, "image")
+        if x.shape[-3:] != self.background.shape:
+            raise ValueError(f"image {x.shape[-3:]} and background {self.background.shape} differ in size")
+        batch = x[None] if x.ndim == 3 else x
+        return fdata.preprocess_image(batch, self.background, self.stats, self.input_size)
+
+    # -- outputs ---------------------------------------------------------------------------------------
+    def out_of_range(self, forces) -> np.ndarray:
+        """(N,) bool: any axis outside [min, max] of the training labels widened by range_margin * span;
+        zero (no contact) always counts as inside, so an unloaded sensor is not flagged."""
+        f = np.asarray(forces, np.float32).reshape(-1, 3)
+        lo, hi = np.minimum(self.force_min, 0), np.maximum(self.force_max, 0)
+        tol = self.range_margin * (hi - lo)
+        return np.any((f < lo - tol) | (f > hi + tol), axis=1)
+
+    def predict(self, images, bgr: bool = False) -> np.ndarray:
+        """(N, H, W, 3) or (H, W, 3) uint8 -> forces (N, 3) float32 in newtons (Fx, Fy, Fz).
+
+        Sets `last_out_of_range` ((N,) bool) and `last_timing` (preprocess_s, model_s); warns with
+        ForceRangeWarning when a prediction is outside the training range."""
+        t0 = time.perf_counter()
+        x = self.preprocess(images, bgr)
+        t1 = time.perf_counter()
+        forces = np.asarray(self._force_fn(self.variables, x), np.float32)
+        self.last_timing = {"preprocess_s": t1 - t0, "model_s": time.perf_counter() - t1}
+        self.last_out_of_range = self.out_of_range(forces)
+        if self.last_out_of_range.any():
+            # a constant message: Python's default filter then shows it once, not every frame
+            lo, hi = ([round(float(v), 3) for v in r] for r in (self.force_min, self.force_max))
+            warnings.warn(f"predictions outside the training force range {lo}..{hi} N (see last_out_of_range)",
+                          ForceRangeWarning, stacklevel=2)
+        return forces
+
+    def predict_depth(self, images, bgr: bool = False, frame: bool = True) -> np.ndarray:
+        """Gel deformation depth in mm: (N, H, W) on the frame's grid (frame=True: un-padded and resized
+        back), or (N, S, S) on the model's square input grid (frame=False)."""
+        if self._depth_fn is None:
+            raise ValueError(f"method {self.method!r} has no depth head; use a *_rd checkpoint for depth")
+        x = self.preprocess(images, bgr)
+        d = fdata.depth_to_mm(np.asarray(self._depth_fn(self.variables, x)), self.stats)
+        return np.stack([self._to_frame(m) for m in d]) if frame else d
+
+    def _to_frame(self, d: np.ndarray) -> np.ndarray:
+        import cv2
+
+        h, w = self.background.shape[:2]
+        side = max(h, w)
+        top, left = (side - h) // 2, (side - w) // 2
+        full = cv2.resize(d, (side, side), interpolation=cv2.INTER_LINEAR)
+        return full[top:top + h, left:left + w]
+
+    def warmup(self, batch: int = 1) -> None:
+        """Compile for this batch size now (first predict otherwise pays it); needs a background."""
+        if self.background is None:
+            raise RuntimeError("no background: call set_background first")
+        self.predict(np.repeat(self.background[None], batch, 0))
+
+
+def load(checkpoint_dir, which: str = "best", frame_size=None, strict_size: bool = True,
+         range_margin: float = 0.05) -> Predictor:
+    """A Predictor for any folder `read_checkpoint` reads. which: "best" or "latest" (training runs)."""
+    return Predictor(read_checkpoint(checkpoint_dir, which, frame_size), strict_size, range_margin)

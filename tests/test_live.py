@@ -1,0 +1,113 @@
+"""The live loop headless on a short simulated video and on a folder of frames; the smoothing filters."""
+
+import csv
+
+import _smoke_run
+import cv2
+import numpy as np
+import pytest
+
+from ffjax import inference, live, live_filters
+from ffjax.data.sources import write_rgb
+
+
+@pytest.fixture(scope="module")
+def run_dir():
+    return _smoke_run.smoke_run()
+
+
+@pytest.fixture(scope="module")
+def clip():
+    """A no-contact frame, then presses of rising Fz: what a camera sees when something is pushed in."""
+    b = _smoke_run.presses(7, seed=3)
+    frames = np.concatenate([b["background"][None], b["image"]])
+    return frames, b["background"]
+
+
+def _read_csv(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def test_video_headless_writes_forces_and_annotated_video(run_dir, clip, tmp_path):
+    frames, _ = clip
+    h, w = frames.shape[1:3]
+    video = tmp_path / "press.mp4"
+    vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10.0, (w, h))
+    for f in frames:
+        vw.write(np.ascontiguousarray(f[..., ::-1]))  # VideoWriter wants BGR
+    vw.release()
+    out = tmp_path / "out"
+    assert live.main(["--checkpoint", str(run_dir), "--video", str(video), "--out", str(out), "--headless",
+                      "--print-every", "0"]) == 0
+    rows = _read_csv(out / "forces.csv")
+    assert len(rows) == len(frames)  # the background frame itself is predicted too
+    assert list(rows[0]) == ["t", "fx", "fy", "fz", "out_of_range", "frame"]
+    assert [float(r["t"]) for r in rows] == pytest.approx(np.arange(len(frames)) / 10.0, abs=1e-3)
+    assert all(np.isfinite(float(r[k])) for r in rows for k in ("fx", "fy", "fz"))
+    assert {r["out_of_range"] for r in rows} <= {"0", "1"}
+    cap = cv2.VideoCapture(str(out / "annotated.mp4"))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    assert n == len(frames)
+
+
+def test_images_folder_matches_predictor_and_smooths(run_dir, clip, tmp_path):
+    frames, bg = clip
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, f in enumerate(frames[1:]):
+        write_rgb(folder / f"{i:03d}.png", f)
+    write_rgb(tmp_path / "bg.png", bg)
+    out = tmp_path / "out"
+    assert live.main(["--checkpoint", str(run_dir), "--images", str(folder), "--background", str(tmp_path / "bg.png"),
+                      "--out", str(out), "--headless", "--smooth", "ema:0.5", "--print-every", "0"]) == 0
+    rows = _read_csv(out / "forces.csv")
+    assert [r["frame"] for r in rows] == [f"{i:03d}.png" for i in range(len(frames) - 1)]
+    pred = inference.load(run_dir)
+    pred.set_background(bg)
+    want = pred.predict(frames[1:])
+    raw = np.array([[float(r[k]) for k in ("fx_raw", "fy_raw", "fz_raw")] for r in rows])
+    np.testing.assert_allclose(raw, want, atol=1e-4)  # PNG is lossless: the same numbers as predict
+    smooth = np.array([[float(r[k]) for k in ("fx", "fy", "fz")] for r in rows])
+    ema = live_filters.EMA(0.5)
+    np.testing.assert_allclose(smooth, [ema(0, x) for x in want], atol=1e-4)
+
+
+def test_run_retakes_background_and_caps_rate(run_dir, clip):
+    frames, bg = clip
+    pred = inference.load(run_dir)
+    stream = ((i / 30, f, i) for i, f in enumerate([frames[1]] * 2 + [bg] * 3 + list(frames[1:])))
+    logs = []
+    s = live.run(pred, stream, warmup=2, bg_frames=3, fps_cap=200, print_every=1, log=logs.append)
+    assert s["frames"] == 3 + len(frames) - 1 and s["background_taken"]
+    np.testing.assert_array_equal(pred.background, bg)  # warm-up frames (pressed) were skipped
+    assert logs[0].startswith("background taken from 3")
+    assert any("Hz" in line for line in logs[2:])
+
+
+def test_annotate_draws_on_an_enlarged_frame(clip):
+    frames, _ = clip
+    img = live.annotate(frames[1], [1.0, -0.5, 5.0], np.array([-2, -2, 0.0]), np.array([2, 2, 15.0]), True, 24.0)
+    assert img.dtype == np.uint8 and img.shape[0] >= frames.shape[1] * 10 and img.shape[1] > 480
+
+
+def test_filters():
+    ema = live_filters.parse("ema:0.25")
+    ys = [ema(i, [4.0, 0, 0])[0] for i in range(3)]
+    assert ys == pytest.approx([4.0, 4.0, 4.0])  # starts at the first sample: no ramp from zero
+    ema.reset()
+    ema(0, [0, 0, 0])
+    assert ema(1, [4, 0, 0])[0] == pytest.approx(1.0)
+    one = live_filters.parse("one-euro:min_cutoff=1.0,beta=0.5")
+    rng = np.random.default_rng(0)
+    t = np.arange(200) / 100
+    noisy = 3 + 0.2 * rng.standard_normal(200)
+    out = np.array([one(ti, [x, 0, 0])[0] for ti, x in zip(t, noisy)])
+    assert np.std(out[50:]) < 0.5 * np.std(noisy[50:])  # jitter at rest is smoothed
+    assert live_filters.parse("one-euro:1,0.1,2").d_cutoff == 2.0
+    assert live_filters.parse(None) is None and live_filters.parse("off") is None
+    for bad in ("ema:2", "kalman:1", "one-euro:gain=1"):
+        with pytest.raises(ValueError):
+            live_filters.parse(bad)
