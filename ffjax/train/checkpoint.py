@@ -116,13 +116,18 @@ class Checkpointer:
         self.best.close()
 
 
-def write_model_json(run_dir, cfg: dict, spec, stats, input_size: int) -> dict:
+def write_model_json(run_dir, cfg: dict, spec, stats, input_size: int, frame_size=None) -> dict:
+    """Write run_dir/model.json: all a predictor needs to rebuild the model and its preprocessing.
+
+    frame_size: (H, W) of the training camera frames, so a predictor can refuse frames of another size.
+    """
     info = {
         "method": spec.name,
         "spec": dataclasses.asdict(spec) if dataclasses.is_dataclass(spec) else {"name": spec.name},
         "input_size": int(input_size),
         "stats": stats.to_dict(),
         "force_range": {"min": list(stats.force_min), "max": list(stats.force_max)},
+        "frame_size": None if frame_size is None else [int(v) for v in frame_size],
         "cfg": _jsonable(cfg),
     }
     path = Path(run_dir) / MODEL_JSON

@@ -186,7 +186,7 @@ def train(
     else:
         stats = fdata.Stats.compute(train_src, cfg["data"])
     cfg = with_output_affine(cfg, stats)
-    write_model_json(run_dir, cfg, spec, stats, input_size)
+    write_model_json(run_dir, cfg, spec, stats, input_size, frame_size=train_src[0]["image"].shape[:2])
 
     steps_per_epoch = len(train_src) // bs
     if steps_per_epoch == 0:

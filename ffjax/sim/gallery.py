@@ -1,0 +1,85 @@
+"""Look at the simulator: `python -m ffjax.sim.gallery --out DIR [--size H W]`.
+
+Writes PNG grids: shapes.png (every indenter and unseen object on mini-1 gel 1), sensors.png (one shape
+on every sensor x gel), force_ramp.png (0..15 N), shear_sweep.png (Fx past the friction cap). Each frame
+is shown with its background-subtracted view and its depth map, labelled with the applied force.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ffjax.sim import INDENTERS, SENSOR_NAMES, UNSEEN_OBJECTS, get_sensor, press  # noqa: E402
+
+
+def _nobg(s):
+    """What the model sees: image - background + 127, clipped, contrast x3 for the eye."""
+    return np.clip((s.image.astype(np.int16) - s.background.astype(np.int16)) * 3 + 127, 0, 255).astype(np.uint8)
+
+
+def _grid(samples, titles, path, cols=5, dmax=None):
+    """Three rows per band of `cols` samples: frame, background-subtracted (x3), depth."""
+    bands = (len(samples) + cols - 1) // cols
+    fig, axes = plt.subplots(3 * bands, cols, figsize=(2.6 * cols, 2.2 * 3 * bands), squeeze=False)
+    for ax in axes.ravel():
+        ax.axis("off")
+    dmax = dmax or max(float(s.depth.max()) for s in samples) or 1.0
+    for i, (s, t) in enumerate(zip(samples, titles)):
+        b, c = divmod(i, cols)
+        f = s.force
+        axes[3 * b, c].imshow(s.image)
+        axes[3 * b, c].set_title(f"{t}\nF=({f[0]:.1f},{f[1]:.1f},{f[2]:.1f}) N" + (" slip" if s.meta["slip"] else ""),
+                                 fontsize=7)
+        axes[3 * b + 1, c].imshow(_nobg(s))
+        im = axes[3 * b + 2, c].imshow(s.depth, cmap="viridis", vmin=-0.1 * dmax, vmax=dmax)
+        axes[3 * b + 2, c].set_title(f"depth max {s.depth.max():.2f} mm", fontsize=6)
+    fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.3, label="depth (mm)")
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def make(out: str, size=None) -> list[str]:
+    os.makedirs(out, exist_ok=True)
+    m1 = get_sensor("mini-1", 1)
+    paths = []
+    names = list(INDENTERS) + list(UNSEEN_OBJECTS)
+    samples = [press(n, m1, force=(0.0, 0.0, 8.0), yaw_deg=20.0, seed=i, size=size) for i, n in enumerate(names)]
+    paths.append(_grid(samples, names, os.path.join(out, "shapes.png")))
+
+    sensors = [get_sensor(k) for k in SENSOR_NAMES]
+    samples = [press("cross", s, force=(0.5, 0.0, 6.0), seed=i, size=size if s.name != "digit" else None)
+               for i, s in enumerate(sensors)]
+    paths.append(_grid(samples, [s.key for s in sensors], os.path.join(out, "sensors.png")))
+
+    fz = [0.0, 0.5, 1.5, 3.0, 5.0, 7.5, 10.0, 12.5, 15.0, 15.0]
+    samples = [press("sphere_small", m1, force=(0.0, 0.0, f), seed=i, size=size) for i, f in enumerate(fz[:-1])]
+    samples.append(press("triple_cylinder", m1, force=(0.0, 0.0, 15.0), seed=9, size=size))
+    paths.append(_grid(samples, ["sphere_small"] * 9 + ["triple_cylinder"], os.path.join(out, "force_ramp.png")))
+
+    fx = [-4.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 4.0]
+    samples = [press("sphere_big", m1, force=(f, 0.0, 3.0), seed=i, size=size) for i, f in enumerate(fx)]
+    samples.append(press("sphere_big", get_sensor("mini-1", 3), force=(2.0, 1.0, 3.0), seed=10, size=size))
+    paths.append(_grid(samples, ["sphere_big Fz=3"] * 9 + ["gel3 markers"], os.path.join(out, "shear_sweep.png")))
+    return paths
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--size", type=int, nargs=2, default=None, metavar=("H", "W"),
+                    help="render size (default native)")
+    args = ap.parse_args(argv)
+    for p in make(args.out, tuple(args.size) if args.size else None):
+        print(p)
+
+
+if __name__ == "__main__":
+    main()

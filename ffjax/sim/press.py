@@ -1,0 +1,185 @@
+"""One press: a body, a sensor, a requested force and a pose -> the camera frame and its labels."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+
+import numpy as np
+
+from ffjax.sim import mechanics, optics
+from ffjax.sim.sensors import Sensor, get_sensor
+from ffjax.sim.shapes import FAR, INDENTERS, Shape, get_shape
+
+SKIN_MM = 0.1  # bending length of the gel's pigment skin
+MAX_TILT_DEG = 15.0  # "small tilt": beyond this the height-field (no undercut) picture breaks down
+
+
+@dataclasses.dataclass
+class Sample:
+    image: np.ndarray  # uint8 (H, W, 3)
+    background: np.ndarray  # uint8 (H, W, 3), the sensor's no-contact frame
+    depth: np.ndarray  # float32 (H, W), gel surface displacement in mm (+ = pressed in, - = bulge)
+    force: np.ndarray  # float32 (3,), applied (Fx, Fy, Fz) in N; shear capped at mu * Fz
+    meta: dict
+
+
+@functools.lru_cache(maxsize=64)
+def _grid(sensor: Sensor, size: tuple[int, int]):
+    return optics.grid(sensor, size)
+
+
+def _solve_size(sensor: Sensor) -> tuple[int, int]:
+    """Fixed grid for the force solve (half native resolution), so the force-depth relation does not
+    depend on the render size."""
+    h, w = sensor.native_size
+    return h // 2, w // 2
+
+
+def body_heights(shape: Shape, sensor: Sensor, size, x_mm, y_mm, yaw_deg, tilt_deg) -> np.ndarray:
+    """Height of the posed body above the gel (mm) at each pixel of a `size` grid, including the
+    gel's dome (DIGIT): the gap that pressing by delta closes."""
+    X, Y = _grid(sensor, tuple(size))
+    u, v = X - np.float32(x_mm), Y - np.float32(y_mm)
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    dy, dx = sensor.mm_per_px(size)
+    h = shape.sample(c * u + s * v, -s * u + c * v, (dx + dy) / 2)
+    tx, ty = tilt_deg
+    if tx or ty:
+        h = h + np.float32(math.tan(math.radians(tx))) * u + np.float32(math.tan(math.radians(ty))) * v
+    if sensor.dome_radius_mm:
+        h = h + (X**2 + Y**2) / np.float32(2 * sensor.dome_radius_mm)
+    return h
+
+
+def _check(sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg):
+    f = np.asarray(force, dtype=np.float64).reshape(-1)
+    if f.shape != (3,):
+        raise ValueError(f"force must be (fx, fy, fz), got {force!r}")
+    vals = [*f, x_mm, y_mm, yaw_deg, *tilt_deg]
+    if not all(math.isfinite(float(v)) for v in vals):
+        raise ValueError(f"force and pose must be finite numbers, got force={force!r}, pose="
+                         f"{(x_mm, y_mm, yaw_deg, tuple(tilt_deg))!r}")
+    if f[2] < 0:
+        raise ValueError(f"Fz must be >= 0 (pressing into the gel), got {f[2]}")
+    fh, fw = sensor.fov_mm
+    if abs(x_mm) > fw / 2 or abs(y_mm) > fh / 2:
+        raise ValueError(f"pose ({x_mm}, {y_mm}) mm is outside the {fw:.1f} x {fh:.1f} mm pad of {sensor.key}")
+    if max(abs(tilt_deg[0]), abs(tilt_deg[1])) > MAX_TILT_DEG:
+        raise ValueError(f"tilt {tuple(tilt_deg)} deg beyond the +-{MAX_TILT_DEG} deg the model supports")
+    return f
+
+
+def press(shape: Shape | str, sensor: Sensor | str, force=(0.0, 0.0, 1.0), x_mm: float = 0.0,
+          y_mm: float = 0.0, yaw_deg: float = 0.0, tilt_deg=(0.0, 0.0), seed: int = 0,
+          size: tuple[int, int] | None = None, noise: bool = True) -> Sample:
+    """Press `shape` into `sensor` with the requested force (N) at a pose; returns the frame and labels.
+
+    The penetration is solved so that the gel carries Fz; shear beyond mu * Fz slips and is capped
+    (meta["slip"]). Camera noise comes from `seed` (independent of the background frame's fixed noise);
+    noise=False renders a noiseless frame (then zero force gives exactly sensor.background(size, False)).
+    """
+    shape = get_shape(shape) if isinstance(shape, str) else shape
+    sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
+    size = tuple(int(s) for s in (size or sensor.native_size))
+    s = _press(shape, sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed, size, noise)
+    s.background = optics.background(sensor, size, noise)
+    return s
+
+
+def _press(shape: Shape, sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed, size, noise) -> Sample:
+    tilt_deg = tuple(float(t) for t in tilt_deg)
+    f = _check(sensor, force, x_mm, y_mm, yaw_deg, tilt_deg)
+    gel = sensor.gel
+    pose = (float(x_mm), float(y_mm), float(yaw_deg), tilt_deg)
+
+    # force balance on the fixed solve grid
+    ssize = _solve_size(sensor)
+    sdy, sdx = sensor.mm_per_px(ssize)
+    h_s = body_heights(shape, sensor, ssize, *pose)
+    if not (h_s < 0.5 * FAR).any():
+        raise ValueError(f"{shape.name} at pose {pose} does not reach the pad")
+    delta = mechanics.solve_delta(h_s, sdx * sdy, gel.young_mpa, gel.thickness_mm, float(f[2]))
+    contact_s = h_s < delta
+    cell_s = sdx * sdy
+
+    # the same press on the render grid
+    dy, dx = sensor.mm_per_px(size)
+    mpp = (dx + dy) / 2
+    h = body_heights(shape, sensor, size, *pose)
+    d = np.clip(np.float32(delta) - h, 0, None)
+    depth = mechanics.gel_surface(d, gel.thickness_mm, mpp)
+    sh = mechanics.shear(f[:2], float(f[2]), d > 0, dx * dy, gel.shear_mpa, gel.thickness_mm, gel.friction,
+                         mpp, area=float(contact_s.sum()) * cell_s)
+    disp_px = None
+    if sh.field is not None:
+        depth = depth + mechanics.shear_bulge(sh, gel.thickness_mm, mpp)
+        disp_px = sh.field[..., None] * (sh.disp_mm / mpp).astype(np.float32)
+    # the pigment skin cannot bend sharply: soften kinks at the contact edge (~0.1 mm)
+    depth = mechanics.smooth(depth.astype(np.float32), SKIN_MM / mpp)
+    image = optics.render(sensor, size, depth, disp_px, seed if noise else None)
+    applied = np.array([sh.force[0], sh.force[1], f[2]], dtype=np.float32)
+    meta = {
+        "shape": shape.name, "sensor": sensor.name, "gel": sensor.gel_id, "sensor_key": sensor.key,
+        "x_mm": pose[0], "y_mm": pose[1], "yaw_deg": pose[2], "tilt_deg": tilt_deg,
+        "penetration_mm": float(delta - h_s.min()), "contact_area_mm2": float(contact_s.sum() * cell_s),
+        "slip": bool(sh.slip), "shear_disp_mm": tuple(float(v) for v in sh.disp_mm),
+        "shear_stiffness_n_per_mm": float(sh.stiffness), "requested_force": tuple(float(v) for v in f),
+        "mm_per_px": float(mpp), "seed": int(seed), "size": size,
+    }
+    return Sample(image, None, depth, applied, meta)
+
+
+def press_batch(shape: Shape | str, sensor: Sensor | str, forces, x_mm=None, y_mm=None, yaw_deg=None,
+                tilt_deg=None, seeds=None, size=None, noise: bool = True) -> dict:
+    """N presses of one shape on one sensor (the dataset path; shares every cached table).
+
+    forces (N, 3); poses are (N,) arrays (tilt (N, 2)) or None for centred/untilted; seeds (N,) or None
+    (= 0..N-1). Returns {"image" (N,H,W,3) uint8, "depth" (N,H,W) float32, "force" (N,3) float32,
+    "background" (H,W,3) uint8, "meta": list of dicts}.
+    """
+    shape = get_shape(shape) if isinstance(shape, str) else shape
+    sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
+    size = tuple(int(s) for s in (size or sensor.native_size))
+    forces = np.asarray(forces, dtype=np.float64).reshape(-1, 3)
+    n = len(forces)
+    zeros = np.zeros(n)
+    xs = zeros if x_mm is None else np.asarray(x_mm, float)
+    ys = zeros if y_mm is None else np.asarray(y_mm, float)
+    yaws = zeros if yaw_deg is None else np.asarray(yaw_deg, float)
+    tilts = np.zeros((n, 2)) if tilt_deg is None else np.asarray(tilt_deg, float).reshape(n, 2)
+    seeds = np.arange(n) if seeds is None else np.asarray(seeds)
+    H, W = size
+    out = {"image": np.empty((n, H, W, 3), np.uint8), "depth": np.empty((n, H, W), np.float32),
+           "force": np.empty((n, 3), np.float32), "background": optics.background(sensor, size, noise), "meta": []}
+    for i in range(n):
+        s = _press(shape, sensor, forces[i], xs[i], ys[i], yaws[i], tilts[i], int(seeds[i]), size, noise)
+        out["image"][i], out["depth"][i], out["force"][i] = s.image, s.depth, s.force
+        out["meta"].append(s.meta)
+    return out
+
+
+def benchmark(size=(48, 64), n: int = 400, sensor: str = "mini-1", seed: int = 0, verbose: bool = True) -> dict:
+    """Throughput of press_batch in one process over all indenters with random forces and poses (what
+    dataset generation does). Returns and prints samples/minute by wall clock and by this process's CPU
+    time (the rate per free core; a shared machine makes the wall rate lower)."""
+    rng = np.random.default_rng(seed)
+    sens = get_sensor(sensor)
+    size = tuple(size)
+    per = max(1, n // len(INDENTERS))
+    for name in INDENTERS:  # build shape maps and tables outside the timing
+        press_batch(name, sens, [(0, 0, 1.0)], size=size)
+    t0, c0 = time.perf_counter(), time.process_time()
+    for name in INDENTERS:
+        f = np.stack([rng.uniform(-1.5, 1.5, per), rng.uniform(-1.5, 1.5, per), rng.uniform(0.2, 15, per)], 1)
+        press_batch(name, sens, f, rng.uniform(-3, 3, per), rng.uniform(-2, 2, per), rng.uniform(-180, 180, per),
+                    rng.uniform(-3, 3, (per, 2)), size=size)
+    count = per * len(INDENTERS)
+    out = {"size": size, "n": count, "per_minute_wall": count / (time.perf_counter() - t0) * 60,
+           "per_minute_cpu": count / max(time.process_time() - c0, 1e-9) * 60}
+    if verbose:
+        print(f"sim.benchmark size={size} n={count}: {out['per_minute_wall']:,.0f} samples/minute wall, "
+              f"{out['per_minute_cpu']:,.0f} per CPU-minute (1 process)")
+    return out

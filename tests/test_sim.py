@@ -1,0 +1,156 @@
+"""ffjax.sim: physics invariants, determinism, every shape and sensor, refusals. Small renders only."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from ffjax import sim
+from ffjax.sim import mechanics
+
+SIZE = (24, 32)
+
+
+def test_zero_force_is_background_and_flat():
+    s = sim.press("sphere_big", "mini-1", force=(0.0, 0.0, 0.0), size=SIZE, noise=False)
+    assert s.depth.shape == SIZE and s.depth.dtype == np.float32 and not s.depth.any()
+    assert np.array_equal(s.image, sim.get_sensor("mini-1").background(SIZE, noise=False))
+    noisy = sim.press("sphere_big", "mini-1", force=(0.0, 0.0, 0.0), size=SIZE, seed=3)
+    diff = np.abs(noisy.image.astype(float) - noisy.background)
+    # independent noise per frame: the difference is noise only (std ~ sqrt(2) * noise_std)
+    assert diff.mean() < 3 * sim.get_sensor("mini-1").noise_std
+    assert np.array_equal(noisy.background, sim.get_sensor("mini-1").background(SIZE))
+
+
+def test_normal_force_monotone_in_penetration():
+    h = sim.body_heights(sim.get_shape("cone"), sim.get_sensor("mini-1"), (60, 80), 0, 0, 0, (0, 0))
+    f = [mechanics.normal_force(h, d, 0.25**2, 0.44, 4.5) for d in np.linspace(0, 3.5, 30)]
+    assert f[0] == 0 and np.all(np.diff(f) > 0)
+    pens = [sim.press("sphere_small", "mini-1", force=(0, 0, fz), size=SIZE).meta["penetration_mm"]
+            for fz in (0.5, 2, 5, 10, 15)]
+    assert np.all(np.diff(pens) > 0)
+
+
+def test_solved_penetration_gives_requested_force():
+    sensor = sim.get_sensor("mini-2", gel=2)
+    s = sim.press("cross", sensor, force=(0, 0, 7.0), size=SIZE)
+    size = (120, 160)
+    dy, dx = sensor.mm_per_px(size)
+    h = sim.body_heights(sim.get_shape("cross"), sensor, size, 0, 0, 0, (0, 0))
+    delta = h.min() + s.meta["penetration_mm"]
+    fz = mechanics.normal_force(h, delta, dx * dy, sensor.gel.young_mpa, sensor.gel.thickness_mm)
+    assert fz == pytest.approx(7.0, rel=0.02)
+
+
+def _symmetric_sensor():
+    """mini-1 with LEDs mirror-symmetric about x = 0 and a uniform pigment."""
+    base = sim.get_sensor("mini-1")
+    leds = (sim.LED(90, 6.0, (1.0, 0.3, 0.3)), sim.LED(270, 6.0, (0.3, 0.3, 1.0)))
+    gel = dataclasses.replace(base.gel, texture_contrast=0.0, markers=False)
+    return dataclasses.replace(base, leds=leds, gel=gel, unevenness=0.0, name="mini-sym")
+
+
+def test_mirrored_shear_mirrors_depth_and_image():
+    sensor = _symmetric_sensor()
+    size = (48, 64)
+    a = sim.press("sphere_big", sensor, force=(1.0, 0.0, 3.0), size=size, noise=False)
+    b = sim.press("sphere_big", sensor, force=(-1.0, 0.0, 3.0), size=size, noise=False)
+    assert np.abs(a.depth - b.depth[:, ::-1]).max() < 1e-3
+    assert np.abs(a.depth - b.depth).max() > 0.02  # the bulge moved: shear is visible in the surface
+    diff = np.abs(a.image.astype(int) - b.image[:, ::-1]).mean()
+    assert diff < 0.5 and np.abs(a.image.astype(int) - b.image).mean() > 2 * diff
+    assert a.meta["shear_disp_mm"][0] == pytest.approx(-b.meta["shear_disp_mm"][0])
+
+
+def test_shear_capped_by_friction():
+    sensor = sim.get_sensor("mini-1")
+    mu = sensor.gel.friction
+    stick = sim.press("sphere_big", sensor, force=(0.5, 0.5, 2.0), size=SIZE)
+    assert not stick.meta["slip"] and np.allclose(stick.force, [0.5, 0.5, 2.0])
+    slip = sim.press("sphere_big", sensor, force=(3.0, 4.0, 2.0), size=SIZE)
+    assert slip.meta["slip"]
+    assert np.hypot(*slip.force[:2]) == pytest.approx(mu * 2.0, rel=1e-5)
+    assert slip.force[0] / slip.force[1] == pytest.approx(0.75, rel=1e-5)  # direction kept
+    assert slip.meta["requested_force"] == (3.0, 4.0, 2.0)
+
+
+def test_shear_moves_the_pigment():
+    sensor = sim.get_sensor("mini-1", gel=3)  # markers
+    a = sim.press("sphere_big", sensor, force=(0, 0, 3.0), size=(48, 64), noise=False)
+    b = sim.press("sphere_big", sensor, force=(1.5, 0, 3.0), size=(48, 64), noise=False)
+    assert np.abs(a.image.astype(int) - b.image).mean() > 0.5
+
+
+def test_same_seed_same_bytes():
+    kw = dict(force=(0.3, -0.2, 4.0), x_mm=1.0, y_mm=-0.5, yaw_deg=30, tilt_deg=(2, -1), size=SIZE)
+    a, b = sim.press("cube", "mini-3", seed=7, **kw), sim.press("cube", "mini-3", seed=7, **kw)
+    c = sim.press("cube", "mini-3", seed=8, **kw)
+    assert a.image.tobytes() == b.image.tobytes() and a.depth.tobytes() == b.depth.tobytes()
+    assert a.image.tobytes() != c.image.tobytes() and np.array_equal(a.depth, c.depth)
+
+
+@pytest.mark.parametrize("name", sim.INDENTERS + sim.UNSEEN_OBJECTS)
+def test_every_shape_renders(name):
+    s = sim.press(name, "mini-1", force=(0.2, 0.1, 5.0), size=SIZE, seed=1)
+    assert s.image.shape == SIZE + (3,) and s.image.dtype == np.uint8
+    assert s.force.dtype == np.float32 and s.force.shape == (3,)
+    assert s.depth.max() > 0.05 and s.meta["shape"] == name and s.meta["contact_area_mm2"] > 0
+
+
+@pytest.mark.parametrize("key", sim.SENSOR_NAMES)
+def test_every_sensor_renders(key):
+    sensor = sim.get_sensor(key)
+    h, w = sensor.native_size
+    size = (h // 10, w // 10)
+    s = sim.press("sphere_small", sensor, force=(0.5, 0.0, 5.0), size=size)
+    assert s.image.shape == size + (3,) and s.background.shape == size + (3,)
+    assert 40 < s.background.mean() < 220
+    assert np.abs(s.image.astype(int) - s.background).mean() > 1.0
+
+
+def test_sensors_differ():
+    bgs = [sim.get_sensor(k).background(SIZE, noise=False).astype(int) for k in ("mini-1", "mini-2", "mini-3")]
+    assert all(np.abs(a - b).mean() > 2 for i, a in enumerate(bgs) for b in bgs[i + 1:])
+    g1, g3 = sim.get_sensor("mini-1", 1), sim.get_sensor("mini-1", 3)
+    p1 = sim.press("sphere_big", g1, force=(0, 0, 5), size=SIZE).meta["penetration_mm"]
+    p3 = sim.press("sphere_big", g3, force=(0, 0, 5), size=SIZE).meta["penetration_mm"]
+    assert p1 != pytest.approx(p3, rel=0.02)
+    assert sim.get_sensor("digit").native_size == (320, 240)
+    assert len(sim.SENSORS) == len(sim.SENSOR_NAMES) == 10
+
+
+@pytest.mark.parametrize("kw", [
+    dict(force=(0, 0, 1e4)),  # beyond what the gel takes
+    dict(force=(0, 0, -1.0)),
+    dict(force=(0, float("nan"), 1.0)),
+    dict(force=(0, 0, float("inf"))),
+    dict(x_mm=50.0),
+    dict(y_mm=-9.0),
+    dict(tilt_deg=(40.0, 0.0)),
+    dict(yaw_deg=float("nan")),
+    dict(force=(1.0, 2.0)),
+])
+def test_invalid_requests_raise(kw):
+    args = dict(force=(0, 0, 1.0), size=SIZE) | kw
+    with pytest.raises(ValueError):
+        sim.press("sphere_big", "mini-1", **args)
+
+
+def test_unknown_names_raise():
+    with pytest.raises(ValueError):
+        sim.get_shape("teapot")
+    with pytest.raises(ValueError):
+        sim.get_sensor("mini-4")
+    with pytest.raises(ValueError):
+        sim.get_sensor("mini-1", gel=4)
+
+
+def test_press_batch_matches_press():
+    forces = np.array([[0.1, 0.0, 2.0], [0.0, -0.3, 9.0]])
+    out = sim.press_batch("ring", "mini-1", forces, x_mm=[0.5, -1], y_mm=[0, 1], yaw_deg=[0, 45],
+                          tilt_deg=[[0, 0], [1, 2]], seeds=[5, 6], size=SIZE)
+    one = sim.press("ring", "mini-1", force=forces[1], x_mm=-1, y_mm=1, yaw_deg=45, tilt_deg=(1, 2), seed=6,
+                    size=SIZE)
+    assert out["image"].shape == (2,) + SIZE + (3,)
+    assert np.array_equal(out["image"][1], one.image) and np.array_equal(out["depth"][1], one.depth)
+    assert np.array_equal(out["background"], one.background) and len(out["meta"]) == 2
