@@ -1,7 +1,9 @@
-"""`python -m ffjax.train --preset quick --method dino_rd [--data DIR] [--out RUN] [--resume]
-[--pretrained DIR] [--set key.path=value ...]`: train one method, report its validation force error.
+"""`python -m ffjax.train --preset quick --method dino_rd [--data DIR | --data TRAIN.csv --val VAL.csv]
+[--out RUN] [--resume] [--pretrained DIR | --init KIND:PATH] [--set key.path=value ...]`: train one method,
+report its validation force error.
 
-Without --data the preset's simulated dataset is generated (or reused) under data/<preset>.
+Without --data the preset's simulated dataset is generated (or reused) under data/<preset>. --data may
+also be a CSV in the FeelAnyForce release layout (tactile, depth, FT; paths relative to the CSV).
 """
 
 from __future__ import annotations
@@ -20,10 +22,14 @@ def parse_args(argv=None):
     ap = argparse.ArgumentParser(prog="python -m ffjax.train", description=__doc__.split("\n\n")[0])
     ap.add_argument("--preset", default="quick", choices=configs.PRESETS)
     ap.add_argument("--method", default="dino_rd", choices=registry.names())
-    ap.add_argument("--data", help="dataset root holding train/ and val/ (default: simulate into data/<preset>)")
+    ap.add_argument("--data", help="dataset root holding train/ and val/, or a release-layout CSV "
+                    "(default: simulate into data/<preset>)")
+    ap.add_argument("--val", help="validation CSV (release layout) when --data is a CSV")
     ap.add_argument("--out", help="run folder (default: runs/<preset>-<method>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     ap.add_argument("--pretrained", help="pretrained backbone folder (python -m ffjax.train.pretrain --out DIR)")
+    ap.add_argument("--init", metavar="KIND:PATH", help="start from weights: dinov2:FILE|DIR, resnet18:FILE|DIR, "
+                    "feelanyforce:FILE|DIR (the release checkpoint), pretrained:DIR")
     ap.add_argument(
         "--set",
         dest="overrides",
@@ -52,15 +58,33 @@ def main(argv=None) -> int:
     cfg = configs.get(args.preset, dict(configs.parse_override(o) for o in args.overrides))
     spec = registry.get(args.method)
     data_dir = args.data
-    if data_dir is None:
+    if args.val and not (data_dir and str(data_dir).endswith(".csv")):
+        print("error: --val goes with --data TRAIN.csv", file=sys.stderr)
+        return 2
+    if data_dir and str(data_dir).endswith(".csv"):
+        data_dir = {"train": data_dir, "val": args.val}
+        if not args.val:
+            print("note: no --val CSV: no validation, the best checkpoint is the last one", file=sys.stderr)
+    elif data_dir is None:
         from ffjax.sim import dataset
 
         data_dir = Path("data") / args.preset
         print(f"dataset: {data_dir} (simulated, preset {args.preset}; generated once, then reused)")
         dataset.generate(cfg, data_dir)
     out = Path(args.out or Path("runs") / f"{args.preset}-{args.method}")
-    backbone = None
-    if args.pretrained:
+    backbone, variables = None, None
+    if args.init and args.pretrained:
+        print("error: give --init or --pretrained, not both", file=sys.stderr)
+        return 2
+    if args.init:
+        from ffjax.train import init_weights
+
+        try:
+            cfg, backbone, variables = init_weights.apply(cfg, spec, args.init)
+        except (ValueError, FileNotFoundError) as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+    elif args.pretrained:
         from ffjax.train.pretrain import load_backbone
 
         backbone = load_backbone(args.pretrained)
@@ -79,6 +103,7 @@ def main(argv=None) -> int:
             out,
             resume=args.resume,
             init_backbone=backbone,
+            init_variables=variables,
             max_steps=args.max_steps,
             progress=not args.quiet,
         )

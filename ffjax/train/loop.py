@@ -149,6 +149,7 @@ def train(
     resume: bool = False,
     init_backbone: tuple | None = None,
     *,
+    init_variables: dict | None = None,
     max_steps: int | None = None,
     callback: Callable | None = None,
     progress: bool = True,
@@ -158,7 +159,8 @@ def train(
 
     data: dataset root with train/ and val/, or {"train": .., "val": ..}, or a (train, val) pair.
     init_backbone: (params, batch_stats) from `pretrain.load_backbone` (ignored on resume: the
-    checkpoint has the weights). max_steps stops early (after checkpointing) — resuming continues.
+    checkpoint has the weights). init_variables: the whole model's variables to start from (e.g. the
+    FeelAnyForce release, converted). max_steps stops early (after checkpointing) — resuming continues.
     callback(step, state) runs after each step; it may return a replacement state (tests inject faults).
     """
     from ffjax import data as fdata
@@ -203,6 +205,7 @@ def train(
         key,
         input_size,
         init_backbone=None if resume and has_ckpt else init_backbone,
+        variables=None if resume and has_ckpt else init_variables,
         total_steps=total,
     )
     state = replicate(state, mesh)

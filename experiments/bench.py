@@ -1,0 +1,396 @@
+"""Benchmarks: ffjax against the same architectures in PyTorch and against this machine's limit.
+
+    python -m experiments.bench [--quick] [--out DIR] [--torch-python /path/to/python-with-torch]
+
+Writes DIR/results.json (every number, commit, machine, steal/load per section), DIR/report.md (every
+ratio) and PNG plots. The PyTorch side (experiments/bench_torch.py) runs in this interpreter when torch
+imports here, else under --torch-python as a subprocess (optional extra: `pip install torch==2.13.0`);
+without either it is skipped and said so. Times are medians over rounds after compilation and warm-up;
+the VMs here lose CPU to neighbours, so compare only ratios taken in one run (steal is recorded).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+from experiments import bench_jax as bj
+from experiments.common import ROOT, git_commit, write_json, write_text
+
+# What each mode measures: (preset, method, input size, train batch, infer batches, overrides, vit preset).
+# "smoke" is for the tests (seconds, numbers meaningless); "quick" ~minutes; "full" < 30 min.
+S14 = {"preset": "paper", "vit": "s14", "overrides": {"model.decoder.kind": "tokens"}}
+PLANS = {
+    "smoke": {
+        "cases": {"quick_vit": {"preset": "smoke", "method": "dino_rd", "size": 32, "batch": 8, "infer": (1, 8)},
+                  "resnet": {"preset": "smoke", "method": "resnet_rd", "size": 32, "batch": 8, "infer": (1,)}},
+        "vit_b14": None, "timing": (1, 1, 2), "infer_timing": (1, 2, 2), "peak_n": 256,
+        "sim": {"n": {"64x64": 10}, "sizes": {"64x64": (24, 32)}}, "data": {"per_shape": 4, "batches": 3},
+        "workers": (0,), "scaling": {"base": "smoke", "batch": (4, 8), "size": (16, 32), "model": ((16, 1), (32, 2))},
+        "dp": None, "bf16_acc": {"preset": "smoke", "steps": 12, "batch": 8}, "profile": True,
+    },
+    "quick": {
+        "cases": {"quick_vit": {"preset": "quick", "method": "dino_rd", "size": 64, "batch": 64, "infer": (1, 32)},
+                  "vit_s14": {**S14, "method": "dino_rd", "size": 224, "batch": 2, "infer": (1, 8),
+                              "timing": (1, 1, 2), "infer_timing": (1, 1, 3)},
+                  "resnet": {"preset": "quick", "method": "resnet_rd", "size": 64, "batch": 64, "infer": (1, 32)}},
+        "vit_b14": {"batch": 1, "timing": (1, 1, 3)}, "timing": (2, 2, 3), "infer_timing": (3, 10, 3),
+        "peak_n": 2048, "sim": {"n": {"64x64": 100, "native": 10}, "sizes": {"64x64": (48, 64), "native": (240, 320)}},
+        "data": {"per_shape": 40, "batches": 30}, "workers": (0, 2),
+        "scaling": {"base": "quick", "batch": (16, 64), "size": (32, 64), "model": ((64, 2), (128, 4))},
+        "dp": {"batch": 64, "warmup": 1, "steps": 2, "rounds": 2},
+        "bf16_acc": {"preset": "smoke", "size": 64, "steps": 100, "batch": 32}, "profile": True,
+    },
+    "full": {
+        "cases": {"quick_vit": {"preset": "quick", "method": "dino_rd", "size": 64, "batch": 64, "infer": (1, 32)},
+                  "vit_s14": {**S14, "method": "dino_rd", "size": 224, "batch": 8, "infer": (1, 32),
+                              "timing": (1, 2, 3), "infer_timing": (1, 2, 3)},
+                  "resnet": {"preset": "quick", "method": "resnet_rd", "size": 64, "batch": 64, "infer": (1, 32)}},
+        "vit_b14": {"batch": 1, "timing": (1, 2, 5)}, "timing": (2, 4, 5), "infer_timing": (5, 20, 5),
+        "peak_n": 2048, "sim": {"n": {"64x64": 400, "native": 40}, "sizes": {"64x64": (48, 64), "native": (240, 320)}},
+        "data": {"per_shape": 100, "batches": 60}, "workers": (0, 2),
+        "scaling": {"base": "quick", "batch": (8, 16, 32, 64, 128), "size": (32, 48, 64, 96, 128),
+                    "model": ((64, 2), (96, 3), (128, 4), (192, 6), (256, 8))},
+        "dp": {"batch": 64, "warmup": 1, "steps": 3, "rounds": 3},
+        "bf16_acc": {"preset": "quick", "size": 64, "steps": 150, "batch": 64}, "profile": True,
+    },
+}
+
+
+# ---------------------------------------------------------------- machine, steal, load
+def cpu_times() -> list[int]:
+    with open("/proc/stat") as f:
+        return [int(v) for v in f.readline().split()[1:]]
+
+
+def steal_between(before: list[int], after: list[int]) -> dict:
+    """Share of CPU time stolen by the hypervisor (and busy share) between two /proc/stat readings."""
+    d = [a - b for a, b in zip(after, before)]
+    total = max(sum(d[:8]), 1)
+    return {"steal": d[7] / total if len(d) > 7 else 0.0, "busy": 1 - (d[3] + d[4]) / total}
+
+
+def machine() -> dict:
+    import jax
+
+    info = {"cpu_model": "unknown", "cores": os.cpu_count(), "python": platform.python_version(),
+            "jax": jax.__version__, "devices": [str(d) for d in jax.devices()], "platform": platform.platform()}
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+        for line in text.splitlines():
+            if line.startswith("model name"):
+                info["cpu_model"] = line.split(":", 1)[1].strip()
+            if line.startswith("flags"):
+                fl = set(line.split(":", 1)[1].split())
+                info["simd"] = sorted(f for f in fl if f.startswith(("avx512f", "avx512_bf16", "amx", "avx2")))
+                break
+        mem = Path("/proc/meminfo").read_text().split("\n")[0].split()[1]
+        info["mem_gib"] = round(int(mem) / 2**20, 1)
+    except OSError:
+        pass
+    import flax
+
+    info["flax"] = flax.__version__
+    return info
+
+
+class Section:
+    """Records wall time, load average and steal share around a block: results[name]["_env"]."""
+
+    def __init__(self, results: dict, name: str, log):
+        self.results, self.name, self.log = results, name, log
+
+    def __enter__(self):
+        self.t0, self.c0, self.l0 = time.perf_counter(), cpu_times(), os.getloadavg()[0]
+        self.log(f"[bench] {self.name} ...")
+        return self
+
+    def __exit__(self, *exc):
+        env = {"wall_s": time.perf_counter() - self.t0, "load1_before": self.l0, "load1_after": os.getloadavg()[0],
+               **steal_between(self.c0, cpu_times())}
+        self.results.setdefault("_env", {})[self.name] = env
+        if self.results.get("_out"):  # partial results survive a killed run
+            write_json(Path(self.results["_out"]) / "results.partial.json",
+                       {k: v for k, v in self.results.items() if k != "_out"})
+        self.log(f"[bench] {self.name} done in {env['wall_s']:.0f}s (steal {env['steal']:.0%}, "
+                 f"load {env['load1_after']:.1f})")
+        return False
+
+
+# ---------------------------------------------------------------- torch side
+class TorchSide:
+    """bench_torch in-process when torch imports here, else a `--serve` subprocess under torch_python."""
+
+    def __init__(self, torch_python: str | None = None):
+        self.proc, self.local, self.why = None, None, None
+        try:
+            from experiments import bench_torch
+
+            self.local = bench_torch
+        except ImportError:
+            if torch_python:
+                env = {**os.environ, "OMP_NUM_THREADS": "2", "PYTHONPATH": str(ROOT)}
+                self.proc = subprocess.Popen([torch_python, str(ROOT / "experiments" / "bench_torch.py"), "--serve"],
+                                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+            else:
+                self.why = "torch not importable here and no --torch-python given"
+        self.info = self.ask({"op": "info"}) if self.available else None
+        if self.info and "error" in self.info:
+            self.why, self.info = self.info["error"], None
+            self.close()
+
+    @property
+    def available(self) -> bool:
+        return self.local is not None or self.proc is not None
+
+    def ask(self, req: dict) -> dict | None:
+        if self.local is not None:
+            return self.local.handle(req)
+        if self.proc is None:
+            return None
+        self.proc.stdin.write(json.dumps(req) + "\n")
+        self.proc.stdin.flush()
+        line = self.proc.stdout.readline()
+        if not line:
+            self.why = f"torch subprocess ended (rc={self.proc.poll()})"
+            self.proc = None
+            return None
+        return json.loads(line)
+
+    def close(self):
+        if self.proc is not None:
+            self.proc.stdin.close()
+            self.proc.wait(timeout=30)
+            self.proc = None
+
+
+# ---------------------------------------------------------------- sections
+def _cfg(case: dict):
+    return bj.case_cfg(case["preset"], case.get("overrides"), case.get("vit"))
+
+
+def run_models(plan: dict, torch: TorchSide, res: dict) -> None:
+    """Train step and inference, ffjax then torch back to back per case (ratios: ffjax speed / torch)."""
+    for name, case in plan["cases"].items():
+        cfg, m, s = _cfg(case), case["method"], case["size"]
+        arch = bj.arch_of(cfg, m, s)
+        w, k, r = case.get("timing", plan["timing"])
+        out = {"arch": arch, "train": {"ffjax": bj.train_case(cfg, m, case["batch"], s, w, k, r)}}
+        if torch.available:
+            out["train"]["torch"] = torch.ask({"op": "train", "arch": arch, "batch": case["batch"], "warmup": w,
+                                               "steps": k, "rounds": r})
+        out["infer"] = {}
+        wi, ki, ri = case.get("infer_timing", plan["infer_timing"])
+        for bsz in case["infer"]:
+            kk = max(1, ki // bsz) if bsz > 1 else ki
+            d = {"ffjax": bj.infer_case(cfg, m, bsz, s, wi, kk, ri)}
+            if torch.available:
+                d["torch"] = torch.ask({"op": "infer", "arch": arch, "batch": bsz, "warmup": wi, "steps": kk,
+                                        "rounds": ri})
+            out["infer"][f"b{bsz}"] = d
+        res[name] = out
+    if plan.get("vit_b14"):
+        v = plan["vit_b14"]
+        cfg = bj.case_cfg("paper", {"model.decoder.kind": "tokens"}, "b14")
+        arch = bj.arch_of(cfg, "dino_rd", 224)
+        w, k, r = v["timing"]
+        d = {"ffjax": bj.infer_case(cfg, "dino_rd", v["batch"], 224, w, k, r)}
+        if torch.available:
+            d["torch"] = torch.ask({"op": "infer", "arch": arch, "batch": v["batch"], "warmup": w, "steps": k,
+                                    "rounds": r})
+        res["vit_b14"] = {"arch": arch, "infer": {f"b{v['batch']}": d}}
+
+
+def run_scaling(plan: dict, res: dict, base_case: dict | None) -> None:
+    """Train-step time and compiled memory of the quick ViT (dino_rd) as batch, image and model grow."""
+    sc = plan["scaling"]
+    base = bj.case_cfg(sc["base"])
+    b0, s0, m0 = base["train"]["batch_size"], base["data"]["input_size"], base["model"]["vit"]
+    w, k, r = 1, 2, 2
+    out = {"batch": [], "size": [], "model": []}
+
+    def one(cfg, bsz, size):
+        if base_case and (bsz, size, cfg["model"]["vit"]) == (base_case["batch"], base_case["input_size"], m0):
+            return base_case
+        return bj.train_case(cfg, "dino_rd", bsz, size, w, k, r)
+
+    for bsz in sc["batch"]:
+        out["batch"].append({"x": bsz, **_slim(one(base, bsz, s0))})
+    for size in sc["size"]:
+        out["size"].append({"x": size, **_slim(one(base, b0, size))})
+    for dim, depth in sc["model"]:
+        cfg = bj.case_cfg(sc["base"], {"model.vit.dim": dim, "model.vit.depth": depth,
+                                       "model.vit.heads": max(1, dim // 32)})
+        out["model"].append({"x": f"{dim}/{depth}", **_slim(one(cfg, b0, s0))})
+    res.update(out)
+
+
+def _slim(r: dict) -> dict:
+    keys = ("ms", "img_s", "params", "gflop_per_step", "achieved_gflops", "compile_s", "batch", "input_size")
+    return {k: r[k] for k in keys} | {"peak_mib": (r["memory"] or {}).get("peak_bytes", 0) / 2**20}
+
+
+def run_dp(plan: dict) -> dict:
+    dp = plan["dp"]
+    env = {**os.environ, "XLA_FLAGS": (os.environ.get("XLA_FLAGS", "") +
+                                       " --xla_force_host_platform_device_count=8").strip()}
+    arg = json.dumps({"preset": "quick", "method": "dino_rd", **dp})
+    p = subprocess.run([sys.executable, "-m", "experiments.bench_dp", arg], env=env, capture_output=True,
+                       text=True, cwd=ROOT, timeout=900)
+    if p.returncode != 0:
+        return {"error": p.stderr[-2000:]}
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def run_data(plan: dict, res: dict, main_case: dict, tmp: Path) -> None:
+    from experiments import bench_data as bd
+    from ffjax import data
+
+    sim = plan["sim"]
+    res["sim"] = bd.sim_rates(sim["sizes"], sim["n"])
+    cfg = bj.case_cfg(plan["cases"]["quick_vit"]["preset"])
+    size, batch = main_case["input_size"], main_case["batch"]
+    cfg["data"]["render_size"] = tuple(plan["sim"]["sizes"]["64x64"])
+    folder, rate = bd.make_split(tmp, cfg, "train", 0, plan["data"]["per_shape"])
+    res["sim"]["dataset_path_64x64"] = {"samples_s": rate, "samples": plan["data"]["per_shape"] * 10}
+    src = data.open_split(folder)
+    stats = data.Stats.compute(src, cfg["data"], size)
+    res["pipeline"] = bd.pipeline_rates(src, stats, size, batch, plan["data"]["batches"], plan["workers"])
+    need = main_case["img_s"]  # what the train step consumes, img/s
+    for v in res["pipeline"].values():
+        v["ratio_to_train_consumption"] = v["img_s"] / need
+    res["pipeline"]["train_consumption_img_s"] = need
+    res["loop_overhead"] = bd.loop_overhead(cfg, "dino_rd", src, stats, size, batch,
+                                            max(3, plan["timing"][1] * plan["timing"][2]))
+    res["_arrays"] = (src, stats, size)
+
+
+FAST_ITEMS = ("recompile", "donation", "decoders", "bf16_speed", "bf16_accuracy")
+
+
+def run_fast(plan: dict, res: dict, models_res: dict, data_ctx) -> None:
+    """Donation, compile-once, decoder kinds, bfloat16 (speed and accuracy), in-memory vs streaming."""
+    case = plan["cases"]["quick_vit"]
+    cfg, m, s, b = _cfg(case), case["method"], case["size"], case["batch"]
+    main = models_res["quick_vit"]["train"]["ffjax"]
+    w, k, r = plan["timing"]
+    items = plan.get("fast", FAST_ITEMS)
+    if "recompile" in items:
+        res["recompile"] = bj.recompile_check(cfg, m, b, s)
+    if "donation" in items:
+        res["donation"] = bj.donation(cfg, m, b, s, w, k, r, done={"donate": main})
+    if "decoders" in items:
+        res["decoders"] = bj.decoder_kinds(case["preset"], b, s, w, k, r, case.get("overrides"),
+                                           done={"tokens": main})
+    if "bf16_speed" in items:
+        res["bf16_speed"] = bj.bf16_speed(cfg, m, b, s, w, k, r, done={"float32": main})
+    acc = plan["bf16_acc"]
+    if data_ctx is not None and "bf16_accuracy" in items:
+        from ffjax import data
+
+        src, _, _ = data_ctx
+        acfg = bj.case_cfg(acc["preset"])
+        asize = acc.get("size", acfg["data"]["input_size"])
+        stats = data.Stats.compute(src, acfg["data"], asize)
+        arrays = data.load_arrays(src, stats, asize)
+        n_val = max(acc["batch"], len(arrays["force"]) // 5)
+        val = {k2: v[:n_val] for k2, v in arrays.items()}
+        tr = {k2: v[n_val:] for k2, v in arrays.items()}
+        res["bf16_accuracy"] = bj.bf16_accuracy(acfg, "dino_rd", tr, val, acc["steps"], acc["batch"])
+        res["bf16_accuracy"]["preset"], res["bf16_accuracy"]["input_size"] = acc["preset"], asize
+
+
+def run(mode: str | dict = "quick", out: str | Path | None = None, torch_python: str | None = None,
+        log=print, skip: tuple[str, ...] = ()) -> dict:
+    """Run every section of `mode` ("smoke" | "quick" | "full", or a plan dict shaped like PLANS' with a
+    "name"); write results.json, report.md and plots to `out`."""
+    plan = PLANS[mode] if isinstance(mode, str) else mode
+    mode = mode if isinstance(mode, str) else plan.get("name", "custom")
+    out = Path(out or ROOT / "results" / f"bench-{mode}").absolute()
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    res: dict = {"experiment": "bench", "mode": mode, "commit": git_commit(),
+                 "date_utc": datetime.now(UTC).isoformat(timespec="seconds"), "machine": machine(),
+                 "load_start": list(os.getloadavg()), "_out": str(out)}
+    torch = TorchSide(torch_python)
+    res["torch"] = torch.info or {"skipped": torch.why}
+    try:
+        with Section(res, "peak", log):
+            res["peak"] = {"ffjax": bj.matmul_peak(plan["peak_n"])}
+            if torch.available:
+                res["peak"]["torch"] = torch.ask({"op": "peak", "n": plan["peak_n"]})
+        with Section(res, "models", log):
+            res["models"] = {}
+            run_models(plan, torch, res["models"])
+    finally:
+        torch.close()
+    main = res["models"]["quick_vit"]["train"]["ffjax"]
+    if plan["profile"] and "profile" not in skip:
+        with Section(res, "profile", log):
+            c = plan["cases"]["quick_vit"]
+            res["profile"] = bj.profile_step(_cfg(c), c["method"], c["batch"], c["size"])
+    data_ctx = None
+    if "data" not in skip:
+        with Section(res, "data", log), tempfile.TemporaryDirectory() as tmp:
+            res["data"] = {}
+            run_data(plan, res["data"], main, Path(tmp))
+            data_ctx = res["data"].pop("_arrays")
+            with Section(res, "fast", log):
+                res["fast"] = {}
+                run_fast(plan, res["fast"], res["models"], data_ctx)
+    else:
+        with Section(res, "fast", log):
+            res["fast"] = {}
+            run_fast(plan, res["fast"], res["models"], None)
+    if "scaling" not in skip:
+        with Section(res, "scaling", log):
+            res["scaling"] = {}
+            run_scaling(plan, res["scaling"], main)
+    if plan["dp"] and "dp" not in skip:
+        with Section(res, "dp", log):
+            res["dp"] = run_dp(plan)
+    res.pop("_out", None)
+    (out / "results.partial.json").unlink(missing_ok=True)
+    res["ratios"] = ratios(res)
+    res["wall_s"] = time.perf_counter() - t_start
+    res["load_end"] = list(os.getloadavg())
+    write_json(out / "results.json", res)
+    from experiments import bench_report
+
+    res["plots"] = bench_report.plots(res, out)
+    write_text(out / "report.md", bench_report.report(res))
+    write_json(out / "results.json", res)
+    log(f"[bench] wrote {out}/results.json and report.md in {res['wall_s']:.0f}s")
+    return res
+
+
+def ratios(res: dict) -> dict:
+    """Every headline ratio, flat: name -> float (>1 means the first-named side is faster/larger)."""
+    from experiments.bench_report import collect_ratios
+
+    return collect_ratios(res)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="the ~minutes version (fewer rounds, smaller sweeps)")
+    ap.add_argument("--smoke", action="store_true", help="tiny sizes, seconds (tests); numbers mean nothing")
+    ap.add_argument("--out", default=None, help="results folder (default results/bench-<mode>)")
+    ap.add_argument("--torch-python", default=None,
+                    help="python with torch for the PyTorch side when torch is not importable here")
+    ap.add_argument("--skip", action="append", default=[], choices=("profile", "data", "scaling", "dp"))
+    a = ap.parse_args(argv)
+    mode = "smoke" if a.smoke else "quick" if a.quick else "full"
+    run(mode, a.out, a.torch_python, skip=tuple(a.skip))
+
+
+if __name__ == "__main__":
+    main()

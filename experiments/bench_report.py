@@ -1,0 +1,245 @@
+"""Ratios, the markdown report and the plots of `experiments.bench` (pure functions of results.json)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from experiments.common import md_table
+
+DIGIT_FPS, GELSIGHT_FPS = 60.0, 25.0
+
+
+def _g(d, *path, default=None):
+    for p in path:
+        if not isinstance(d, dict) or p not in d or d[p] is None:
+            return default
+        d = d[p]
+    return d
+
+
+def _div(a, b):
+    try:
+        a, b = float(a), float(b)
+    except (TypeError, ValueError):
+        return None
+    return a / b if b and math.isfinite(a) and math.isfinite(b) else None
+
+
+def collect_ratios(res: dict) -> dict:
+    """name -> ratio. Speed ratios are written so that > 1 means the first-named side is faster."""
+    r = {}
+    peak = _g(res, "peak", "ffjax", "gflops")
+    r["peak_matmul_ffjax_over_torch"] = _div(peak, _g(res, "peak", "torch", "gflops"))
+    for name, m in (res.get("models") or {}).items():
+        tj, tt = _g(m, "train", "ffjax", "ms"), _g(m, "train", "torch", "ms")
+        r[f"train_{name}_ffjax_over_torch"] = _div(tt, tj)
+        r[f"train_{name}_fraction_of_peak"] = _div(_g(m, "train", "ffjax", "achieved_gflops"), peak)
+        for b, d in (m.get("infer") or {}).items():
+            r[f"infer_{name}_{b}_ffjax_over_torch"] = _div(_g(d, "torch", "ms"), _g(d, "ffjax", "ms"))
+    b1 = _g(res, "models", "quick_vit", "infer", "b1")
+    r["target_quick_b1_fps_over_digit60"] = _div(_div(1e3, _g(b1, "ffjax", "ms")), DIGIT_FPS)
+    r["target_quick_b1_torch_fps_over_digit60"] = _div(_div(1e3, _g(b1, "torch", "ms")), DIGIT_FPS)
+    bb = _g(res, "models", "vit_b14", "infer", "b1")
+    r["target_b14_cpu_fps_over_gelsight25"] = _div(_div(1e3, _g(bb, "ffjax", "ms")), GELSIGHT_FPS)
+    sim = res.get("data", {}).get("sim", {})
+    r["sim_64_over_native"] = _div(_g(sim, "64x64", "samples_s"), _g(sim, "native", "samples_s"))
+    pipe = _g(res, "data", "pipeline", default={})
+    for k, v in pipe.items():
+        if isinstance(v, dict):
+            r[f"pipeline_{k}_over_train_consumption"] = v.get("ratio_to_train_consumption")
+    r["pipeline_in_memory_over_streaming_w0"] = _div(_g(pipe, "in_memory", "batches_s"),
+                                                     _g(pipe, "streaming_w0", "batches_s"))
+    r["pipeline_streaming_w2_over_w0"] = _div(_g(pipe, "streaming_w2", "batches_s"),
+                                              _g(pipe, "streaming_w0", "batches_s"))
+    lo = _g(res, "data", "loop_overhead", default={})
+    for k in ("in_memory", "streaming_w0"):
+        r[f"loop_step_fixed_over_{k}"] = _div(_g(lo, "fixed_batch", "ms_per_step"), _g(lo, k, "ms_per_step"))
+    f = res.get("fast", {})
+    r["donation_speedup"] = _g(f, "donation", "speedup_donate")
+    r["donation_peak_memory_ratio"] = _g(f, "donation", "peak_bytes_ratio_donate_over_no")
+    r["decoder_tokens_over_paper_speed"] = _g(f, "decoders", "speedup_tokens_over_paper")
+    r["bf16_speedup"] = _g(f, "bf16_speed", "speedup_bf16")
+    r["bf16_val_loss_over_f32"] = _g(f, "bf16_accuracy", "val_loss_ratio_bf16_over_f32")
+    r["bf16_val_force_l1_over_f32"] = _g(f, "bf16_accuracy", "val_force_l1_ratio_bf16_over_f32")
+    r["dp8_over_1dev_speed"] = _g(res, "dp", "speedup_all_over_one")
+    for axis, pts in (res.get("scaling") or {}).items():
+        if pts:
+            r[f"scaling_{axis}_ms_last_over_first"] = _div(pts[-1]["ms"], pts[0]["ms"])
+    return {k: v for k, v in r.items() if v is not None}
+
+
+def _f(x, nd=1):
+    if x is None:
+        return "–"
+    if isinstance(x, str):
+        return x
+    return f"{x:,.{nd}f}" if abs(x) >= 0.1 or x == 0 else f"{x:.3g}"
+
+
+def report(res: dict) -> str:
+    m, r = res["machine"], res.get("ratios", {})
+    env = res.get("_env", {})
+    out = [f"# ffjax benchmarks ({res['mode']})\n",
+           f"Commit `{res['commit']}`, {res['date_utc']}. Machine: {m.get('cpu_model')}, {m.get('cores')} cores, "
+           f"{m.get('mem_gib')} GiB, SIMD {', '.join(m.get('simd', []))}; jax {m.get('jax')} "
+           f"(devices {', '.join(m.get('devices', []))}), torch: "
+           f"{_g(res, 'torch', 'torch') or _g(res, 'torch', 'skipped')} "
+           f"({_g(res, 'torch', 'threads', default='?')} threads). Load average at start "
+           f"{res['load_start'][0]:.1f}, end {res['load_end'][0]:.1f}. Times are medians after warm-up; compare "
+           "ratios within this run only. No GPU was available: every number is CPU; the GPU part was not run.\n"]
+    out.append("## Steal and load per section\n")
+    out.append(md_table(["section", "wall s", "steal %", "busy %", "load before", "load after"],
+                        [[k, _f(v["wall_s"], 0), _f(100 * v["steal"]), _f(100 * v["busy"]), _f(v["load1_before"]),
+                          _f(v["load1_after"])] for k, v in env.items()]))
+    peak = res.get("peak", {})
+    out.append(f"\nMachine peak (float32 matmul {_g(peak, 'ffjax', 'n')}^2, best of rounds): ffjax/XLA "
+               f"{_f(_g(peak, 'ffjax', 'gflops'))} GFLOP/s, torch {_f(_g(peak, 'torch', 'gflops'))} GFLOP/s.\n")
+    out.append("## 1. Training step (img/s; ratio > 1 = ffjax faster)\n")
+    rows = []
+    for name, c in res.get("models", {}).items():
+        t = c.get("train")
+        if not t:
+            continue
+        j, tt = t["ffjax"], t.get("torch") or {}
+        rows.append([name, f"{c['arch']['backbone']} @{t['ffjax']['input_size']}", j["batch"], _f(j["img_s"]),
+                     _f(tt.get("img_s")), _f(r.get(f"train_{name}_ffjax_over_torch"), 2),
+                     f"{j['params']:,} / {tt.get('params', '–'):,}" if tt.get("params") else f"{j['params']:,}",
+                     _f(j["compile_s"])])
+    out.append(md_table(["case", "model", "batch", "ffjax img/s", "torch img/s", "ffjax/torch", "params jax/torch",
+                         "compile s"], rows))
+    out.append("\n## 2. Inference, force only (ms per call)\n")
+    rows = []
+    for name, c in res.get("models", {}).items():
+        for b, d in c.get("infer", {}).items():
+            j, tt = d["ffjax"], d.get("torch") or {}
+            rows.append([name, b, _f(j["ms"], 2), _f(tt.get("ms"), 2), _f(j["img_s"]), _f(tt.get("img_s")),
+                         _f(r.get(f"infer_{name}_{b}_ffjax_over_torch"), 2)])
+    out.append(md_table(["case", "batch", "ffjax ms", "torch ms", "ffjax img/s", "torch img/s", "ffjax/torch"],
+                        rows))
+    out.append(f"\nTargets: quick model at batch 1 runs {_f(r.get('target_quick_b1_fps_over_digit60'), 1)}x a "
+               f"DIGIT's 60 fps on this CPU (torch {_f(r.get('target_quick_b1_torch_fps_over_digit60'), 1)}x). "
+               f"ViT-B/14 at 224, batch 1, CPU: {_f(r.get('target_b14_cpu_fps_over_gelsight25'), 2)}x a GelSight "
+               "Mini's 25 fps. The GPU target (ViT-B/14 keeps up with 25 fps with large headroom) was not run: "
+               "no GPU here.\n")
+    out.append("## 3. FLOP/s of the train step vs the machine's peak\n")
+    rows = [[n, _f(c["train"]["ffjax"]["gflop_per_step"]), _f(c["train"]["ffjax"]["achieved_gflops"]),
+             _f(100 * (r.get(f"train_{n}_fraction_of_peak") or float("nan")))]
+            for n, c in res.get("models", {}).items() if c.get("train")]
+    out.append(md_table(["case", "GFLOP/step (XLA)", "achieved GFLOP/s", "% of matmul peak"], rows))
+    p = res.get("profile")
+    if p:
+        ph = p["phases"]
+        out.append(f"\nProfile of the {p['method']} step (batch {p['batch']}, {p['input_size']}px), from a "
+                   f"jax.profiler trace: {p['n_ops_seen']} XLA ops, {_f(p['op_ms_total'])} ms of op time per step "
+                   f"(summed over threads) for {_f(p['step_ms_wall'])} ms wall. Phases (separately jitted): "
+                   f"forward {_f(ph['forward'])} ms, backward {_f(ph['backward'])} ms, Adam + rest "
+                   f"{_f(ph['optimizer_and_rest'])} ms of {_f(ph['full_step'])} ms.\n")
+        out.append(md_table(["op kind", "ms/step", "share %"],
+                            [[k["kind"], _f(k["ms"], 2), _f(100 * k["share"])] for k in p["by_kind"]]))
+        out.append("\nTop ops:\n\n" + md_table(["op", "kind", "ms/step", "share %"],
+                                                [[o["name"], o["kind"], _f(o["ms"], 2), _f(100 * o["share"])]
+                                                 for o in p["top_ops"]]))
+    d = res.get("data")
+    if d:
+        out.append("\n## 4. Simulator and input pipeline\n")
+        out.append(md_table(["simulator", "render size", "samples/s"],
+                            [[k, "x".join(map(str, v.get("render_size", ["64x48 (dataset path)"]))),
+                              _f(v["samples_s"])] for k, v in d["sim"].items()]))
+        pipe = d["pipeline"]
+        out.append(f"\nTrain step consumes {_f(pipe['train_consumption_img_s'])} img/s (quick ViT).\n\n")
+        out.append(md_table(["pipeline", "batches/s", "img/s", "x train consumption", "first batch s"],
+                            [[k, _f(v["batches_s"]), _f(v["img_s"]), _f(v["ratio_to_train_consumption"], 1),
+                              _f(v["first_batch_s"], 2)] for k, v in pipe.items() if isinstance(v, dict)]))
+        lo = d["loop_overhead"]
+        out.append(f"\nIn the loop (next(it) + train_step, sharing the cores): fixed batch "
+                   f"{_f(lo['fixed_batch']['ms_per_step'])} ms/step, in-memory "
+                   f"{_f(lo['in_memory']['ms_per_step'])} ms ({_f(100 * lo['in_memory']['overhead'])}% overhead), "
+                   f"streaming {_f(lo['streaming_w0']['ms_per_step'])} ms "
+                   f"({_f(100 * lo['streaming_w0']['overhead'])}%).\n")
+    sc = res.get("scaling")
+    if sc:
+        out.append("\n## 5. Scaling (quick ViT dino_rd train step; memory = XLA's compiled peak)\n")
+        for axis, pts in sc.items():
+            out.append(f"\n{axis}:\n\n" + md_table(
+                [axis, "ms/step", "img/s", "GFLOP/s", "peak MiB", "params"],
+                [[pt["x"], _f(pt["ms"]), _f(pt["img_s"]), _f(pt["achieved_gflops"]), _f(pt["peak_mib"]),
+                  f"{pt['params']:,}"] for pt in pts]))
+    dp = res.get("dp")
+    if dp:
+        if "error" in dp:
+            out.append(f"\nData parallel: failed: `{dp['error'][-300:]}`\n")
+        else:
+            out.append(f"\nData parallel ({dp['devices']} virtual CPU devices, batch {dp['batch']}): "
+                       f"{_f(dp['all_devices']['ms'])} ms/step vs {_f(dp['one_device']['ms'])} ms on one device "
+                       f"(speed ratio {_f(dp['speedup_all_over_one'], 2)}; same 2 cores, so ~1 is the ideal); "
+                       f"first-step loss difference {dp['first_step_loss_abs_diff']:.2e}.\n")
+    f = res.get("fast", {})
+    out.append("\n## 6. Make it fast: measured effects\n")
+    rows = []
+    if "recompile" in f:
+        rc = f["recompile"]
+        rows.append(["compile once (TRACE_COUNT)", f"{rc['traces_after']} retraces in {rc['steps']} steps "
+                     f"(incl. a rebuilt state)", "ok" if rc["compiles_once"] else "FAIL"])
+    if "donation" in f:
+        dn = f["donation"]
+        rows.append(["donate state (vs not)", f"{_f(dn['donate']['ms'])} vs {_f(dn['no_donate']['ms'])} ms",
+                     f"speed x{_f(dn['speedup_donate'], 2)}, peak memory x"
+                     f"{_f(dn.get('peak_bytes_ratio_donate_over_no'), 2)}"])
+    if "decoders" in f:
+        dc = f["decoders"]
+        rows.append(["decoder: tokens (Dense+depth_to_space) vs paper (upsample+conv k5)",
+                     f"{_f(dc['tokens']['ms'])} vs {_f(dc['paper']['ms'])} ms (no decoder {_f(dc['none']['ms'])})",
+                     f"speed x{_f(dc['speedup_tokens_over_paper'], 2)}; decoder share of step: tokens "
+                     f"{_f(100 * dc['decoder_share_tokens'])}%, paper {_f(100 * dc['decoder_share_paper'])}%"])
+    if "bf16_speed" in f:
+        bs = f["bf16_speed"]
+        rows.append(["bfloat16 compute vs float32", f"{_f(bs['bfloat16']['ms'])} vs {_f(bs['float32']['ms'])} ms",
+                     f"speed x{_f(bs['speedup_bf16'], 2)}"])
+    if "bf16_accuracy" in f:
+        ba = f["bf16_accuracy"]
+        rows.append([f"bfloat16 accuracy ({ba['steps']} steps, {ba['preset']} model, {ba['input_size']}px)",
+                     f"val loss {_f(ba['bfloat16']['val_loss'], 4)} vs {_f(ba['float32']['val_loss'], 4)}; "
+                     f"force L1 {_f(ba['bfloat16']['val_force_l1'], 4)} vs {_f(ba['float32']['val_force_l1'], 4)}",
+                     f"val loss x{_f(ba['val_loss_ratio_bf16_over_f32'], 3)}"])
+    if r.get("pipeline_in_memory_over_streaming_w0"):
+        rows.append(["in-memory pipeline vs streaming (0 workers)", "batches/s",
+                     f"x{_f(r['pipeline_in_memory_over_streaming_w0'], 1)}"])
+    out.append(md_table(["change", "measured", "effect"], rows))
+    out.append("\n## All ratios\n")
+    out.append(md_table(["ratio", "value"], [[k, _f(v, 3)] for k, v in r.items()]))
+    if res.get("plots"):
+        out.append("\n" + "\n".join(f"![{Path(p).stem}]({Path(p).name})" for p in res["plots"]) + "\n")
+    return "\n".join(out)
+
+
+def plots(res: dict, out: Path) -> list[str]:
+    """One PNG per scaling axis: ms/step and compiled peak memory."""
+    sc = res.get("scaling")
+    if not sc:
+        return []
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = []
+    labels = {"batch": "batch size", "size": "image size (px)", "model": "ViT dim/depth"}
+    for axis, pts in sc.items():
+        if not pts:
+            continue
+        fig, ax = plt.subplots(figsize=(5, 3.4))
+        xs = [str(p["x"]) for p in pts]
+        ax.plot(xs, [p["ms"] for p in pts], "o-", color="C0")
+        ax.set_xlabel(labels.get(axis, axis))
+        ax.set_ylabel("train step, ms", color="C0")
+        ax2 = ax.twinx()
+        ax2.plot(xs, [p["peak_mib"] for p in pts], "s--", color="C1")
+        ax2.set_ylabel("compiled peak memory, MiB", color="C1")
+        ax.set_title(f"quick ViT dino_rd: scaling with {labels.get(axis, axis)}")
+        fig.tight_layout()
+        path = Path(out) / f"scaling_{axis}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        files.append(str(path))
+    return files

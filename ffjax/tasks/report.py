@@ -1,0 +1,377 @@
+"""Tables (markdown laid out like the paper's, CSV) and plots of the downstream results."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ffjax.tasks import grasping, pushing
+
+PERFECT = "perfect"
+ROWS = (
+    ("force_est", "Force GelSight (ours) [N]", 2),
+    ("force_ref", "Force reference (ATI, drifting) [N]", 2),
+    ("force_error", "Force error [N]", 2),
+    ("weight_error", "Weight error [kg]", 2),
+)
+EXTRA = (
+    ("force_true", "True push force [N]", 2),
+    ("mu_true", "mu true (object-table)", 3),
+    ("mu_fit", "mu fitted from the reference", 3),
+    ("mass_est", "Estimated mass [kg]", 3),
+    ("weight_error_true_mu", "Weight error with the true mu [kg]", 2),
+)
+
+
+def _common():
+    from experiments import common  # the experiment helpers (md tables, atomic writes)
+
+    return common
+
+
+def _v(ms) -> float:
+    return ms["mean"] if isinstance(ms, dict) else float(ms)
+
+
+def table4_md(res: dict) -> str:
+    c = _common()
+    push = res["pushing"]
+    m = res["main_method"]
+    objs = pushing.OBJECTS
+    head = ["weight [kg]", *[o.label for o in objs]]
+    tab = push["table"][m]
+    rows = [[label, *[f"{c.fmt(tab[o.name][k], d)} ({o.paper[k]:g})" for o in objs]] for k, label, d in ROWS]
+    extra = [[label, *[c.fmt(tab[o.name][k], d) for o in objs]] for k, label, d in EXTRA]
+    perf = push["table"][PERFECT]
+    extra.append(
+        ["Weight error, perfect tactile sensor [kg]", *[c.fmt(perf[o.name]["weight_error"], 3) for o in objs]]
+    )
+    out = [
+        f"# Table IV: weighing by pushing ({res['preset']} preset, {m}; the paper's values in brackets)\n",
+        f"{res['push_config']['pushes']} pushes of {push['duration_s']:g} s per object at "
+        f"{res['push_config']['fps']:g} fps (camera 25 fps), averaged over the constant-velocity phase; "
+        "mu fitted from the reference sensor with the known mass (mu = f_ref / m g), "
+        "weight = f_est / (mu g).\n",
+        c.md_table(head, rows),
+        "\nDiagnostics (not in the paper):\n",
+        c.md_table(head, extra),
+    ]
+    # every method
+    methods = [k for k in push["table"] if k != PERFECT] + [PERFECT]
+    mrows = []
+    for meth in methods:
+        t = push["table"][meth]
+        mrows.append(
+            [
+                meth,
+                *[
+                    f"{c.fmt(t[o.name]['force_error'], 2)} / {c.fmt(t[o.name]['weight_error'], 3)}"
+                    for o in objs
+                ],
+                c.fmt(_pct(t["mean"]["weight_error_rel"]), 1),
+            ]
+        )
+    out += [
+        "\n## Every method: force error [N] / weight error [kg]\n",
+        "(`perfect` = the tactile estimate is the true force: what remains is the drifting reference "
+        "and the table.)\n",
+        c.md_table(["method", *[o.label for o in objs], "mean weight error %"], mrows),
+    ]
+    # duration sweep
+    durs = push["durations"]
+    drows = [
+        [meth, *[c.fmt(_pct(push["sweep"][meth][str(T)]["mean"]["weight_error_rel"]), 1) for T in durs]]
+        for meth in methods
+    ]
+    out += [
+        "\n## Push duration: mean weight error % over the four objects\n",
+        c.md_table(["method", *[f"{T:g} s" for T in durs]], drows),
+    ]
+    return "".join(out)
+
+
+def _pct(ms: dict) -> dict:
+    return {**ms, "mean": 100 * ms["mean"], "std": 100 * ms["std"]}
+
+
+def grasping_md(res: dict) -> str:
+    c = _common()
+    g = res["grasping"]["summary"]
+    m = res["main_method"]
+    cup = res["cup"]
+    out = [
+        f"# Grasping to a target force ({res['preset']} preset, {m})\n\n",
+        f"Plastic cup rim: k = {cup['stiffness_n_per_mm']:.3f} N/mm "
+        "(thin-ring model, see ffjax/tasks/grasping.py), "
+        f"diameter {cup['diameter_mm']:g} mm; gripper step {res['gripper']['step_mm']:g} mm; "
+        f"{len(res['grasping']['cup'][PERFECT][0][str(cup['targets'][0])])} trials with small pose changes. "
+        "The gripper closes until the reading of either sensor reaches the target.\n\n",
+    ]
+    rows = []
+    for T in cup["targets"]:
+        t, e = g["cup"][PERFECT][str(T)], g["cup"][m][str(T)]
+        p = cup["paper"][str(T)] if str(T) in cup["paper"] else cup["paper"][T]
+        rows.append(
+            [
+                f"{T:g}",
+                f"{c.fmt(t['deformation_pct'], 2)} ({p['true']})",
+                f"{c.fmt(e['deformation_pct'], 2)} ({p['est']})",
+                c.fmt(e["abs_deformation_error_pct"], 2),
+                c.fmt(t["overshoot_n"], 3),
+                c.fmt(t["step_increment_n"], 3),
+                c.fmt(e["overshoot_n"], 2),
+                f"{100 * e['reached']:.0f}%",
+            ]
+        )
+    out.append(
+        c.md_table(
+            [
+                "target [N]",
+                "deformation % true force (paper)",
+                "deformation % estimated (paper)",
+                "abs deformation error %",
+                "overshoot, true force [N]",
+                "one step [N]",
+                "true force - target, estimated control [N]",
+                "target reached",
+            ],
+            rows,
+        )
+    )
+    out.append("\n## Fruits: success rate (final true force between the gentle and firm thresholds)\n\n")
+    frows = []
+    for f in grasping.FRUITS:
+        t, e = g["fruits"][PERFECT][f.name], g["fruits"][m][f.name]
+        frows.append(
+            [
+                f.name,
+                f"{f.gentle_n:.2f}",
+                f"{f.firm_n:.2f}",
+                f"{100 * t['gentle']['success']:.0f}% / {100 * e['gentle']['success']:.0f}%",
+                f"{100 * t['firm']['success']:.0f}% / {100 * e['firm']['success']:.0f}%",
+                c.fmt(e["gentle"]["force"], 2),
+                c.fmt(e["firm"]["force"], 2),
+            ]
+        )
+    out.append(
+        c.md_table(
+            [
+                "fruit",
+                "gentle [N]",
+                "firm [N]",
+                "gentle success true / est.",
+                "firm success true / est.",
+                "final force gentle, est. [N]",
+                "final force firm, est. [N]",
+            ],
+            frows,
+        )
+    )
+    out.append("\n## Every method\n\n")
+    mrows = []
+    for meth in [k for k in g["cup"] if k != PERFECT]:
+        cu = g["cup"][meth]
+        fr = g["fruits"][meth]
+        succ = np.mean([fr[f][mode]["success"] for f in fr for mode in fr[f]])
+        mrows.append(
+            [
+                meth,
+                *[c.fmt(cu[str(T)]["abs_deformation_error_pct"], 2) for T in cup["targets"]],
+                *[c.fmt(cu[str(T)]["overshoot_n"], 2) for T in cup["targets"]],
+                f"{100 * succ:.0f}%",
+            ]
+        )
+    out.append(
+        c.md_table(
+            [
+                "method",
+                *[f"abs def. error % @{T:g} N" for T in cup["targets"]],
+                *[f"force - target @{T:g} N" for T in cup["targets"]],
+                "fruit grasp success",
+            ],
+            mrows,
+        )
+    )
+    return "".join(out)
+
+
+def write_csvs(res: dict, out: Path) -> None:
+    c = _common()
+    push = res["pushing"]
+    fields = [
+        "force_est",
+        "force_ref",
+        "force_true",
+        "force_error",
+        "mu_true",
+        "mu_fit",
+        "mass_est",
+        "weight_error",
+        "weight_error_true_mu",
+    ]
+    rows = [
+        [m, o.name, o.mass_kg, *[_v(push["table"][m][o.name][f]) for f in fields]]
+        for m in push["table"]
+        for o in pushing.OBJECTS
+    ]
+    c.write_csv(out / "table4.csv", ["method", "object", "mass", *fields], rows)
+    rows = [
+        [
+            m,
+            T,
+            o.name,
+            _v(push["sweep"][m][str(T)][o.name]["weight_error"]),
+            _v(push["sweep"][m][str(T)][o.name]["force_error"]),
+        ]
+        for m in push["sweep"]
+        for T in push["durations"]
+        for o in pushing.OBJECTS
+    ]
+    c.write_csv(
+        out / "push_duration.csv", ["method", "duration_s", "object", "weight_error", "force_error"], rows
+    )
+    g = res["grasping"]
+    rows = [
+        [
+            m,
+            i,
+            T,
+            k,
+            r["stop_step"],
+            r["force"],
+            r["deformation_pct"],
+            r["overshoot_n"],
+            r["step_increment_n"],
+            r["reached"],
+        ]
+        for m, ck in g["cup"].items()
+        for i, c_ in enumerate(ck)
+        for T, rs in c_.items()
+        for k, r in enumerate(rs)
+    ]
+    c.write_csv(
+        out / "grasp_cup.csv",
+        [
+            "method",
+            "checkpoint",
+            "target",
+            "trial",
+            "stop_step",
+            "force",
+            "deformation_pct",
+            "overshoot_n",
+            "step_increment_n",
+            "reached",
+        ],
+        rows,
+    )
+    rows = [
+        [m, i, f, mode, k, r["stop_step"], r["force"], r["success"]]
+        for m, ck in g["fruits"].items()
+        for i, c_ in enumerate(ck)
+        for f, modes in c_.items()
+        for mode, rs in modes.items()
+        for k, r in enumerate(rs)
+    ]
+    c.write_csv(
+        out / "grasp_fruits.csv",
+        ["method", "checkpoint", "fruit", "mode", "trial", "stop_step", "force", "success"],
+        rows,
+    )
+
+
+def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    made = []
+    if push_trace is not None:
+        tr = push_trace
+        fig, ax = plt.subplots(figsize=(7, 3.5))
+        const = np.asarray(tr["phase"]) == 2
+        if const.any():
+            ax.axvspan(
+                np.asarray(tr["t"])[const][0],
+                np.asarray(tr["t"])[-1],
+                color="0.92",
+                label="constant velocity",
+            )
+        ax.plot(tr["t"], tr["true"], "k-", lw=1.2, label="true push force")
+        ax.plot(tr["t"], tr["reference"], "C1-", lw=0.8, label="reference sensor (drifting)")
+        ax.plot(tr["t"], tr["estimate"], "C0.-", lw=0.8, ms=3, label=f"estimate ({tr['method']})")
+        ax.set(
+            xlabel="time [s]", ylabel="Fz = push force [N]", title=f"one push of the {tr['object']} weight"
+        )
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / "push_force.png", dpi=120)
+        plt.close(fig)
+        made.append("push_force.png")
+    push = res["pushing"]
+    fig, ax = plt.subplots(figsize=(5.5, 3.5))
+    for m in push["sweep"]:
+        y = [100 * push["sweep"][m][str(T)]["mean"]["weight_error_rel"]["mean"] for T in push["durations"]]
+        ax.plot(push["durations"], y, "o-" if m != PERFECT else "k--", label=m)
+    ax.set(
+        xlabel="push duration [s]", ylabel="mean weight error [%]", title="weighing error vs push duration"
+    )
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "push_duration.png", dpi=120)
+    plt.close(fig)
+    made.append("push_duration.png")
+    tr = res["grasping"].get("cup_trace")
+    if tr:
+        fig, (a1, a2) = plt.subplots(2, 1, figsize=(6, 5), sharex=True)
+        a1.plot(tr["steps"], tr["true"], "k.-", label="true force")
+        names = [f"{n}-gel{g}" for n, g in res["gripper"]["sensors"]]
+        a1.plot(tr["steps"], tr["est_a"], "C0.-", label=f"estimate, jaw A ({names[0]})")
+        a1.plot(tr["steps"], tr["est_b"], "C2.-", label=f"estimate, jaw B ({names[1]})")
+        a1.axhline(tr["target"], color="r", lw=0.8, label="target")
+        a1.axvline(tr["stop_true"], color="k", ls=":", lw=0.8)
+        a1.axvline(tr["stop_est"], color="C0", ls=":", lw=0.8)
+        a1.set(ylabel="Fz [N]", title="closing on the cup rim (dotted: stop, true / estimated control)")
+        a1.legend(fontsize=7)
+        a2.plot(tr["steps"], tr["deformation_pct"], "k.-")
+        a2.set(xlabel="gripper step", ylabel="deformation [%]")
+        fig.tight_layout()
+        fig.savefig(out / "grasp_steps.png", dpi=120)
+        plt.close(fig)
+        made.append("grasp_steps.png")
+    return made
+
+
+def write_all(res: dict, out, push_trace: dict | None = None) -> None:
+    c = _common()
+    out = Path(out)
+    c.write_json(out / "results.json", res)
+    c.write_text(out / "table4.md", table4_md(res))
+    c.write_text(out / "grasping.md", grasping_md(res))
+    write_csvs(res, out)
+    res["plots"] = plots(res, out, push_trace)
+    c.write_json(out / "results.json", res)
+
+
+def console_summary(res: dict) -> str:
+    m = res["main_method"]
+    t = res["pushing"]["table"][m]
+    lines = [
+        f"weighing by pushing ({m}): "
+        + ", ".join(
+            f"{o.label} f_est {t[o.name]['force_est']['mean']:.2f} N "
+            f"vs ref {t[o.name]['force_ref']['mean']:.2f} N, "
+            f"weight err {t[o.name]['weight_error']['mean']:.3f} kg"
+            for o in pushing.OBJECTS
+        )
+    ]
+    g = res["grasping"]["summary"]["cup"]
+    for T in res["cup"]["targets"]:
+        lines.append(
+            f"cup @ {T:g} N: deformation "
+            f"{g[PERFECT][str(T)]['deformation_pct']['mean']:.2f}% (true force) vs "
+            f"{g[m][str(T)]['deformation_pct']['mean']:.2f}% (estimate)"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,48 @@
+"""Force readers for the tasks: a trained checkpoint (via ffjax.inference) with fixed-size batches, so
+the jitted network compiles once however many frames a scene hands it."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+
+class ModelSensor:
+    """estimate(frames (N,H,W,3) uint8, background (H,W,3) uint8) -> forces (N, 3) in N."""
+
+    BUCKETS = (16,)  # the one batch shape compiled: every call is cut or padded to it
+
+    def __init__(self, run_dir, which: str = "best"):
+        from ffjax import inference
+
+        self.run_dir = str(run_dir)
+        self.predictor = inference.load(run_dir, which=which)
+        self.method = self.predictor.method
+        self.out_of_range = 0
+        self.frames_seen = 0
+
+    @property
+    def frame_size(self) -> tuple[int, int]:
+        return tuple(self.predictor.frame_size)
+
+    def __call__(self, frames: np.ndarray, background: np.ndarray) -> np.ndarray:
+        from ffjax.inference import ForceRangeWarning
+
+        frames = np.asarray(frames)
+        self.predictor.set_background(background)
+        out = np.empty((len(frames), 3), np.float32)
+        big = self.BUCKETS[-1]
+        for i in range(0, len(frames), big):
+            part = frames[i : i + big]
+            n = len(part)
+            size = next(b for b in self.BUCKETS if b >= n)
+            if n < size:  # pad to a compiled batch shape
+                part = np.concatenate([part, np.repeat(part[-1:], size - n, 0)])
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", ForceRangeWarning)
+                pred = self.predictor.predict(part)
+            self.out_of_range += int(self.predictor.last_out_of_range[:n].sum())
+            out[i : i + n] = pred[:n]
+        self.frames_seen += len(frames)
+        return out

@@ -1,0 +1,67 @@
+"""`python -m ffjax.train` on the FeelAnyForce release layout (CSV + PNG + .npy) and from release weights."""
+
+import json
+from pathlib import Path
+
+import _smoke_run
+import pytest
+
+from ffjax import data
+from ffjax.data import csv_layout
+from ffjax.train import __main__ as cli
+from ffjax.train import init_weights
+
+FIXTURES = Path(__file__).parent / "fixtures"
+
+
+@pytest.fixture(scope="module")
+def release_csvs(tmp_path_factory):
+    """A tiny dataset in the release layout, written by the test: train and val CSVs."""
+    root = tmp_path_factory.mktemp("release")
+    for split, n, seed in (("train", 16, 3), ("val", 8, 4)):
+        _smoke_run.write_split(root / "shards" / split, n, seed)
+        csv_layout.write_csv(data.open_split(root / "shards" / split), root / split, progress=False)
+    return root / "train" / "data.csv", root / "val" / "data.csv"
+
+
+def test_trains_on_release_csv(release_csvs, tmp_path, capsys):
+    train_csv, val_csv = release_csvs
+    assert train_csv.read_text().splitlines()[0].split(",")[:3] == ["tactile", "depth", "FT"]
+    rc = cli.main(["--preset", "smoke", "--method", "dino_rd", "--data", str(train_csv), "--val", str(val_csv),
+                   "--out", str(tmp_path / "run"), "--quiet"])
+    assert rc == 0
+    assert "final validation force error" in capsys.readouterr().out
+    info = json.loads((tmp_path / "run" / "model.json").read_text())
+    assert info["frame_size"] == list(_smoke_run.frame_size())
+
+
+def test_val_without_csv_is_refused(tmp_path, capsys):
+    assert cli.main(["--preset", "smoke", "--val", "x.csv", "--out", str(tmp_path)]) == 2
+    assert "--val goes with --data TRAIN.csv" in capsys.readouterr().err
+
+
+def test_init_from_release_checkpoint(release_csvs, tmp_path):
+    from ffjax.convert import __main__ as convert_cli
+
+    train_csv, val_csv = release_csvs
+    converted = tmp_path / "release"
+    assert convert_cli.main(["feelanyforce", str(FIXTURES / "feelanyforce_tiny.pth.tar"), "--heads", "2",
+                             "--out", str(converted)]) == 0
+    rc = cli.main(["--preset", "smoke", "--method", "dino_rd", "--data", str(train_csv), "--val", str(val_csv),
+                   "--init", f"feelanyforce:{converted}", "--max-steps", "1",
+                   "--out", str(tmp_path / "run"), "--quiet"])
+    assert rc == 0
+    cfg = json.loads((tmp_path / "run" / "model.json").read_text())["cfg"]
+    size = json.loads((converted / "convert.json").read_text())["input_size"]
+    assert cfg["data"]["input_size"] == size and cfg["model"]["regressor"]["out_scale"] is None
+
+
+def test_init_errors_name_the_problem(tmp_path):
+    from ffjax import registry
+
+    with pytest.raises(ValueError, match="KIND:PATH"):
+        init_weights.parse("nonsense")
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        init_weights.parse(f"dinov2:{tmp_path / 'missing.pth'}")
+    with pytest.raises(ValueError, match="uses resnet"):
+        init_weights.apply({}, registry.get("resnet_rd"), f"dinov2:{FIXTURES / 'dinov2_tiny.pth'}")
