@@ -17,7 +17,7 @@ def sim_rates(sizes: dict, n: dict) -> dict:
     """sim.benchmark (press_batch over all indenters, random forces/poses, 1 process) per render size."""
     out = {}
     for name, size in sizes.items():
-        per_min = sim.benchmark(size=tuple(size), n=int(n[name]), verbose=False)
+        per_min = sim.benchmark(size=tuple(size), n=int(n[name]), verbose=False)["per_minute_wall"]
         out[name] = {"render_size": list(size), "samples": int(n[name]), "samples_s": per_min / 60}
     return out
 

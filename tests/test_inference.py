@@ -51,7 +51,7 @@ def test_predict_matches_training_path_and_compiles_once_per_shape(run_dir, pred
 def test_properties(pred):
     d = pred.describe()
     assert pred.input_size == 32 and pred.frame_size == _smoke_run.frame_size()
-    assert pred.frame_size_source == "assumed" and d["channels"] == "RGB" and d["depth_head"]
+    assert pred.frame_size_source == "model.json" and d["channels"] == "RGB" and d["depth_head"]
     assert np.all(pred.force_min < pred.force_max)
 
 

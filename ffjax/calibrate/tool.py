@@ -90,11 +90,13 @@ def calibrate(checkpoint, data, out, layers: str = "last", steps: int | None = N
     pred = core.predict_from_features(head, new_reg, feats)
     after = metrics.summarize(pred[hold], y[hold], lo, hi)
     after_fit = metrics.summarize(pred[fit], y[fit], lo, hi)
+    before_fit = metrics.summarize(core.predict_from_features(head, reg, feats)[fit], y[fit], lo, hi)
     report = {
         "checkpoint": str(checkpoint), "data": str(data), "layers": layers, "steps": steps, "lr": lr,
         "batch_size": batch_size, "holdout": holdout, "seed": seed, "n": int(len(y)), "n_fit": int(len(fit)),
         "n_holdout": int(len(hold)), "frame_size": list(frame), "force_range_used": {"min": list(lo), "max": list(hi)},
-        "holdout_before": before, "holdout_after": after, "fit_after": after_fit,
+        "holdout_before": before, "holdout_after": after, "fit_before": before_fit,
+        "fit_after": after_fit,
         "calibration_force_range": {"min": y.min(0).tolist(), "max": y.max(0).tolist()},
     }
     variables = core.with_regressor(ckpt.variables, new_reg)
