@@ -32,6 +32,15 @@ CONFIG = {
         "ckpt_every": 2000,
         "grad_clip": 0.0,
     },
-    "pretrain": {"steps": 0, "batch_size": 128, "lr": 5e-4, "corpus_size": 0, "out_dim": 65536},
+    "pretrain": {
+        "steps": 0, "batch_size": 128, "lr": 5e-4, "corpus_size": 0, "out_dim": 65536,
+        # DINO self-distillation (ffjax.train.pretrain); paper scale loads real DINOv2 weights instead
+        "warmup_steps": 10, "min_lr_ratio": 0.05, "weight_decay": 0.04, "grad_clip": 3.0,
+        "head_hidden": 2048, "head_bottleneck": 256, "freeze_last_steps": 10, "init_layerscale": 0.1, "head_bn": True,
+        "local_crops": 8, "local_size": 98, "global_scale": (0.32, 1.0), "local_scale": (0.05, 0.32),
+        "student_temp": 0.1, "teacher_temp": 0.07, "teacher_temp_start": 0.04, "teacher_temp_warmup": 30,
+        "momentum": 0.996, "center_momentum": 0.9,
+        "flip": 0.5, "color_jitter": 0.4, "blur": 0.5, "noise": 0.1, "corpus_sim_fraction": 0.5,
+    },
     "calibrate": {"steps": 300, "lr": 1e-4, "batch_size": 32, "holdout": 0.2},
 }

@@ -28,14 +28,25 @@ CONFIG = {
     },
     "train": {
         "batch_size": 64,
-        "epochs": 6,
-        "lr_backbone": 1e-4,
-        "lr_heads": 5e-4,
-        "schedule": "constant",  # constant | warmup_cosine
+        "epochs": 4,
+        # CPU scale trains ~400 steps, not the paper's ~150k: higher rates with warmup + cosine decay
+        # (at 1e-4 / 5e-4 constant, 3 epochs reached val Fz MAE 2.24 N; at these, 2.05 N).
+        "lr_backbone": 5e-4,
+        "lr_heads": 1e-3,
+        "schedule": "warmup_cosine",  # constant | warmup_cosine
         "warmup_steps": 50,
         "ckpt_every": 200,
         "grad_clip": 0.0,
     },
-    "pretrain": {"steps": 1200, "batch_size": 64, "lr": 5e-4, "corpus_size": 6000, "out_dim": 1024},
+    "pretrain": {
+        "steps": 180, "batch_size": 32, "lr": 5e-4, "corpus_size": 6000, "out_dim": 1024,
+        # DINO self-distillation (ffjax.train.pretrain); sized for ~2-3 min per backbone on 2 cores
+        "warmup_steps": 20, "min_lr_ratio": 0.05, "weight_decay": 0.04, "grad_clip": 3.0,
+        "head_hidden": 512, "head_bottleneck": 128, "freeze_last_steps": 10, "init_layerscale": 0.1, "head_bn": True,
+        "local_crops": 4, "local_size": 32, "global_scale": (0.4, 1.0), "local_scale": (0.1, 0.4),
+        "student_temp": 0.1, "teacher_temp": 0.05, "teacher_temp_start": 0.04, "teacher_temp_warmup": 60,
+        "momentum": 0.996, "center_momentum": 0.9,
+        "flip": 0.5, "color_jitter": 0.4, "blur": 0.5, "noise": 0.1, "corpus_sim_fraction": 0.5,
+    },
     "calibrate": {"steps": 200, "lr": 1e-4, "batch_size": 32, "holdout": 0.2},
 }

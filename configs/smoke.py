@@ -32,6 +32,15 @@ CONFIG = {
         "ckpt_every": 5,
         "grad_clip": 0.0,
     },
-    "pretrain": {"steps": 4, "batch_size": 8, "lr": 5e-4, "corpus_size": 32, "out_dim": 64},
+    "pretrain": {
+        "steps": 4, "batch_size": 8, "lr": 5e-4, "corpus_size": 32, "out_dim": 64,
+        # DINO self-distillation (ffjax.train.pretrain); tiny: a few steps for tests
+        "warmup_steps": 1, "min_lr_ratio": 0.05, "weight_decay": 0.04, "grad_clip": 3.0,
+        "head_hidden": 64, "head_bottleneck": 32, "freeze_last_steps": 1, "init_layerscale": 0.1, "head_bn": True,
+        "local_crops": 2, "local_size": 16, "global_scale": (0.4, 1.0), "local_scale": (0.1, 0.4),
+        "student_temp": 0.1, "teacher_temp": 0.05, "teacher_temp_start": 0.04, "teacher_temp_warmup": 2,
+        "momentum": 0.996, "center_momentum": 0.9,
+        "flip": 0.5, "color_jitter": 0.4, "blur": 0.5, "noise": 0.1, "corpus_sim_fraction": 0.5,
+    },
     "calibrate": {"steps": 5, "lr": 1e-4, "batch_size": 8, "holdout": 0.2},
 }

@@ -1,0 +1,105 @@
+"""DINO pretraining (ffjax.train.pretrain) and its unlabeled corpus (ffjax.train.corpus), smoke scale."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import configs
+from ffjax import models, sim
+from ffjax.train import corpus, pretrain
+
+FAST = {"xla_backend_optimization_level": 0}  # halves XLA's compile time; numerics are what is tested
+
+
+def _leaf_shapes(tree):
+    return {jax.tree_util.keystr(p): tuple(np.shape(v)) for p, v in jax.tree_util.tree_leaves_with_path(tree)}
+
+
+@pytest.mark.parametrize("kind", ["vit", "resnet"])
+def test_update_steps_and_saved_backbone(kind, tmp_path):
+    """A few DINO steps: finite loss, the EMA teacher moves; the saved teacher backbone loads into the
+    force model's backbone tree (same structure and shapes as models.build_backbone's init)."""
+    cfg = configs.get("smoke")
+    p = pretrain.settings(cfg, kind)["pretrain"]
+    S = cfg["data"]["input_size"]
+    state = pretrain.init_state(cfg, kind, jax.random.PRNGKey(0))
+    teacher0 = jax.tree.map(np.array, state["teacher"])
+    images = np.random.default_rng(0).integers(0, 256, (p["batch_size"], S, S, 3), dtype=np.uint8)
+    norm = ([0.5] * 3, [0.25] * 3)
+    update = None
+    for i in range(3):
+        batch = pretrain.multicrop(images, np.random.default_rng(i), p, S, norm)
+        if update is None:
+            update = jax.jit(pretrain.make_update(cfg, kind), donate_argnums=0).lower(
+                state, batch, jax.random.PRNGKey(1)).compile(compiler_options=FAST)
+        assert batch["local"].shape[1:3] == (p["local_size"],) * 2  # multi-crop at two sizes
+        state, m = update(state, batch, jax.random.PRNGKey(1))
+        assert np.isfinite(float(m["loss"])), m
+    assert int(state["step"]) == 3
+    moved = jax.tree.map(lambda a, b: float(np.abs(np.asarray(a) - b).max()), state["teacher"]["params"],
+                         teacher0["params"])
+    assert max(jax.tree.leaves(moved)) > 0  # EMA teacher follows the student
+    diff = jax.tree.map(lambda a, b: float(np.abs(np.asarray(a) - np.asarray(b)).max()),
+                        state["teacher"]["params"], state["student"]["params"])
+    assert max(jax.tree.leaves(diff)) > 0  # ... but is not the student
+    if kind == "resnet":  # BatchNorm running stats are threaded through functionally
+        bs_moved = jax.tree.map(lambda a, b: float(np.abs(np.asarray(a) - b).max()),
+                                state["student"]["batch_stats"], teacher0["batch_stats"])
+        assert max(jax.tree.leaves(bs_moved)) > 0
+
+    pretrain.save_backbone(tmp_path / kind / pretrain.BACKBONE_FILE, state["teacher"]["params"]["backbone"],
+                           state["teacher"]["batch_stats"].get("backbone"))
+    params, stats = pretrain.load_backbone(tmp_path, kind=kind)  # the --out folder + kind
+    net = models.build_backbone(cfg["model"], kind, S)
+    ref = jax.eval_shape(lambda: net.init(jax.random.PRNGKey(1), jnp.zeros((1, S, S, 3)), train=False))
+    assert _leaf_shapes(params) == _leaf_shapes(ref["params"])
+    assert _leaf_shapes(stats) == _leaf_shapes(ref.get("batch_stats", {}))
+
+
+def test_corpus_deterministic_and_free_of_evaluation_frames():
+    cfg = configs.get("smoke", {"pretrain.corpus_size": 20})
+    settings = corpus.corpus_settings(cfg)
+    a, meta = corpus.build(settings)
+    b, _ = corpus.build(settings)
+    np.testing.assert_array_equal(a, b)
+    S = cfg["data"]["input_size"]
+    assert a.shape == (20, S, S, 3) and a.dtype == np.uint8
+    sim_frames = [f for k, f in zip(meta["kinds"], meta["frames"]) if k == "sim"]
+    assert sim_frames and set(meta["kinds"]) - {"sim"}  # both halves present
+    named = set(sim.INDENTERS) | set(sim.UNSEEN_OBJECTS)
+    assert not any(f["shape"] in named for f in sim_frames)
+    assert not any(f["sensor"] in sim.SENSOR_NAMES for f in sim_frames)
+    # and no frame equals what an evaluation sensor shows for a named shape under the same preprocessing
+    size = tuple(cfg["data"]["render_size"])
+    for name in list(sim.INDENTERS)[:3]:
+        s = sim.press(name, "mini-1", force=(0.0, 0.0, 5.0), size=size)
+        ref = corpus.to_input(s.image, s.background, S).astype(np.int16)
+        assert np.abs(a.astype(np.int16) - ref).reshape(len(a), -1).mean(1).min() > 1.0
+
+
+def test_cli_caches_and_reuses(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(pretrain, "COMPILER_OPTIONS", FAST)
+    args = ["--preset", "smoke", "--backbone", "vit", "--out", str(tmp_path), "--set", "pretrain.steps=2",
+            "--set", "pretrain.local_crops=0"]
+    pretrain.main(args)
+    folder = tmp_path / "vit"
+    file = folder / pretrain.BACKBONE_FILE
+    assert file.exists() and (folder / pretrain.META_FILE).exists() and list(tmp_path.glob("corpus_*.npy"))
+    mtime = file.stat().st_mtime_ns
+    capsys.readouterr()
+    pretrain.main(args)
+    assert "reusing" in capsys.readouterr().out
+    assert file.stat().st_mtime_ns == mtime
+    params, stats = pretrain.load_backbone(folder)
+    assert stats == {} and "patch_embed" in params
+    cfg = configs.get("smoke", {"pretrain.steps": 3})
+    assert not pretrain.is_cached(cfg, "vit", folder)  # a different config is not reused
+
+
+def test_linear_probe_recovers_linear_target():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(200, 8))
+    w = rng.normal(size=(8, 3))
+    res = pretrain.linear_probe(x[:150], x[:150] @ w, {"val": (x[150:], x[150:] @ w)})
+    assert res["val"]["nl1"] < 1.0
