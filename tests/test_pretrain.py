@@ -20,7 +20,9 @@ def _leaf_shapes(tree):
 def test_update_steps_and_saved_backbone(kind, tmp_path):
     """A few DINO steps: finite loss, the EMA teacher moves; the saved teacher backbone loads into the
     force model's backbone tree (same structure and shapes as models.build_backbone's init)."""
-    cfg = configs.get("smoke")
+    # local crops on the ViT only (position-table interpolation; BatchNorm threading through both passes
+    # is covered by the head's BN): the ResNet pools any size, and a second input shape doubles compile
+    cfg = configs.get("smoke", {"pretrain.local_crops": 2 if kind == "vit" else 0})
     p = pretrain.settings(cfg, kind)["pretrain"]
     S = cfg["data"]["input_size"]
     state = pretrain.init_state(cfg, kind, jax.random.PRNGKey(0))
@@ -33,7 +35,8 @@ def test_update_steps_and_saved_backbone(kind, tmp_path):
         if update is None:
             update = jax.jit(pretrain.make_update(cfg, kind), donate_argnums=0).lower(
                 state, batch, jax.random.PRNGKey(1)).compile(compiler_options=FAST)
-        assert batch["local"].shape[1:3] == (p["local_size"],) * 2  # multi-crop at two sizes
+        if kind == "vit":
+            assert batch["local"].shape[1:3] == (p["local_size"],) * 2  # multi-crop at two sizes
         state, m = update(state, batch, jax.random.PRNGKey(1))
         assert np.isfinite(float(m["loss"])), m
     assert int(state["step"]) == 3
