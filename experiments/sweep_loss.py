@@ -1,0 +1,276 @@
+"""Does the depth head help, and how much? Sweep the loss weights of the fine-tuned DINO model.
+
+    python -m experiments.sweep_loss --preset {smoke,quick,full} [--betas 0 1 3 10 30] [--alpha 1]
+                                     [--seeds N] [--base dino_rd] [--ablation DIR] [--out DIR]
+
+The loss is alpha * L1(force) + beta * MSE(depth). Each beta is a registry entry made from the base
+method with dataclasses.replace (data, not a new code path). beta = 0 means the depth head is ABSENT
+(no decoder at all, so exactly DINO R), not present-but-unweighted; the base's own beta (10 for DINO RD)
+is the base method itself. Variants that match a method the ablation already trained (same name, config
+and seed) reuse its run folder instead of training again. Training and evaluation are the ablation's
+(`ablation.train_run`, `ablation.evaluate_run`). Writes OUT/results.json, sweep.md, sweep.csv, sweep.png.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+
+from experiments import ablation, common
+from experiments import paper_numbers as P
+from ffjax import registry
+
+DEFAULT_BETAS = (0.0, 1.0, 3.0, 10.0, 30.0)
+DEFAULT_SEEDS = {"smoke": 1, "quick": 1, "full": 3, "paper": 1}
+# What each run is scored on (from its ablation evaluation): unseen objects = Table I mean; unseen
+# sensors = Table II mean over the 8 GelSight unit x gel combinations other than the training one.
+METRICS = {"unseen_objects": "unseen objects (Table I mean)",
+           "unseen_sensors": "unseen GelSight units x gels (Table II, 8 combos)",
+           "digit": "DIGIT (uncalibrated)",
+           "train_sensor": "training sensor mini-1/gel-1"}
+
+
+def variant(base: registry.Method, beta: float, alpha: float = 1.0) -> registry.Method:
+    """The registry entry for (alpha, beta): an already registered method with exactly these settings
+    (e.g. dino_r for beta 0, dino_rd for beta 10), else a new one registered here."""
+    beta, alpha = float(beta), float(alpha)
+    want = dataclasses.replace(base, depth_head=beta > 0, beta=beta, alpha=alpha)
+    same = [m for m in map(registry.get, registry.names())
+            if dataclasses.replace(m, name=want.name, paper_name=want.paper_name) == want]
+    if base in same:
+        return base
+    if same:
+        return same[0]
+    tag = f"_b{beta:g}" + (f"_a{alpha:g}" if alpha != 1.0 else "")
+    label = f"{base.paper_name} (beta {beta:g}" + (f", alpha {alpha:g})" if alpha != 1.0 else ")")
+    spec = dataclasses.replace(want, name=base.name + tag, paper_name=label)
+    known = registry.names()
+    if spec.name in known and registry.get(spec.name) != spec:
+        raise ValueError(f"registry name {spec.name!r} is taken by another method")
+    return spec if spec.name in known else registry.register(spec)
+
+
+def register_from(results: dict) -> list[str]:
+    """Register the variants a sweep's results.json names (checkpoints of a variant load only once its
+    registry entry exists in this process); returns their names."""
+    base = registry.get(results["base"])
+    return [variant(base, v["beta"], v["alpha"]).name for v in results["per_beta"].values()]
+
+
+def scores(ev: dict) -> dict:
+    """The sweep's numbers from one run's ablation evaluation (eval.json "result")."""
+    t1, t2 = ev["table1"], ev["table2"]
+    return {"unseen_objects": float(np.mean([t1[o]["nl1"] for o in t1])),
+            "unseen_sensors": float(np.mean([t2[s]["nl1"] for s in P.SENSORS[1:]])),
+            "digit": float(t2["digit"]["nl1"]) if "digit" in t2 else float("nan"),
+            "train_sensor": float(t2[P.SENSORS[0]]["nl1"]),
+            "unseen_objects_mae_n": np.mean([t1[o]["mae_n"] for o in t1], axis=0).round(4).tolist()}
+
+
+def reusable_run(ablation_dir: Path | None, spec, seed: int, key: str) -> Path | None:
+    """The ablation's finished run folder for this method and seed, if it was trained with the same key."""
+    if ablation_dir is None:
+        return None
+    folder = Path(ablation_dir) / "runs" / spec.name / f"seed{seed}"
+    info = common.read_json(folder / "stage.json") or {}
+    return folder.absolute() if info.get("key") == key and info.get("status") == "done" else None
+
+
+def main(argv=None) -> dict:
+    ap = common.base_parser(__doc__.strip().splitlines()[0])
+    ap.add_argument("--betas", type=float, nargs="+", default=list(DEFAULT_BETAS), help="depth-loss weights")
+    ap.add_argument("--alpha", type=float, default=1.0, help="force-loss weight (the x axis is beta / alpha)")
+    ap.add_argument("--seeds", type=int, default=None, help="seeds per beta (default: 1, 3 at full)")
+    ap.add_argument("--base", default="dino_rd", help="registry method the variants are made from")
+    ap.add_argument("--ablation", default=None,
+                    help="ablation results folder whose finished runs are reused (default: results/ablation-<preset>)")
+    args = ap.parse_args(argv)
+    if any(b < 0 for b in args.betas) or args.alpha <= 0:
+        ap.error("betas must be >= 0 and alpha > 0")
+    cfg = common.config_from_args(args)
+    seeds_n = args.seeds or DEFAULT_SEEDS[args.preset]
+    if seeds_n < 1:
+        ap.error("--seeds must be at least 1")
+    base = registry.get(args.base)
+    if not base.depth_head:
+        ap.error(f"--base {args.base} has no depth head; choose one with a decoder (e.g. dino_rd)")
+    out = Path(args.out or common.ROOT / "results" / f"sweep_loss-{args.preset}").absolute()
+    abl = Path(args.ablation) if args.ablation else common.ROOT / "results" / f"ablation-{args.preset}"
+    results = run(cfg, base, sorted(set(args.betas)), args.alpha, seeds_n, out, abl, args.data, args.force,
+                  not args.quiet)
+    print(results["finding"])
+    print(f"\nwrote {out}/results.json, sweep.md, sweep.csv, sweep.png")
+    return results
+
+
+def run(cfg, base, betas, alpha, n_seeds, out, ablation_dir=None, data_dir=None, force=False, progress=True) -> dict:
+    out = Path(out).absolute()
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    data_root = common.ensure_data(cfg, data_dir, progress=progress)
+    timings = {"data_s": round(time.perf_counter() - t0, 1), "train_s": {}, "eval_s": {}}
+    specs = {b: variant(base, b, alpha) for b in betas}
+    backbone = None
+    if any(s.pretrained for s in specs.values()):
+        t = time.perf_counter()
+        backbone = ablation.pretrained_backbone(cfg, base.backbone, data_root, force, progress)
+        timings[f"pretrain_{base.backbone}_s"] = round(time.perf_counter() - t, 1)
+    seeds = [int(cfg["seed"]) + k for k in range(n_seeds)]
+    per_beta = {}
+    for beta, spec in specs.items():
+        runs, per_seed = [], []
+        for seed in seeds:
+            key = ablation.train_key(cfg, spec, seed, data_root)
+            run_dir = (None if force else reusable_run(ablation_dir, spec, seed, key)) \
+                or out / "runs" / spec.name / f"seed{seed}"
+            t = time.perf_counter()
+            ablation.train_run(cfg, spec, seed, data_root, run_dir, backbone if spec.pretrained else None, force,
+                               progress)
+            timings["train_s"].setdefault(f"{beta:g}", []).append(round(time.perf_counter() - t, 1))
+            t = time.perf_counter()
+            per_seed.append(scores(ablation.evaluate_run(cfg, run_dir, data_root, force)))
+            timings["eval_s"].setdefault(f"{beta:g}", []).append(round(time.perf_counter() - t, 1))
+            runs.append(str(run_dir))
+        per_beta[f"{beta:g}"] = {
+            "beta": beta, "alpha": alpha, "ratio": beta / alpha, "method": spec.name, "paper_name": spec.paper_name,
+            "depth_head": spec.depth_head, "run_dirs": runs, "per_seed": per_seed,
+            **{m: common.mean_std([s[m] for s in per_seed]) for m in METRICS},
+        }
+    timings["total_s"] = round(time.perf_counter() - t0, 1)
+    results = {"preset": cfg["preset"], "commit": common.git_commit(), "seeds": seeds, "timings": timings,
+               "base": base.name, "alpha": alpha, "betas": betas, "per_beta": per_beta, "metrics": METRICS,
+               # the ablation's keys too, so `stability --ablation <this folder>` scores the sweep's models
+               "methods": [v["method"] for v in per_beta.values()],
+               "checkpoints": {v["method"]: v["run_dirs"] for v in per_beta.values()},
+               "beta0": "depth head absent (no decoder): the DINO R model",
+               "metric": "normalized L1 % (mean over Fx, Fy, Fz of mean |error| / training label range)",
+               "data": str(data_root), "config": cfg}
+    results["finding"] = finding(results)
+    write_all(results, out)
+    return results
+
+
+def _fmt(ms: dict) -> str:
+    return common.fmt(ms, 2)
+
+
+def finding(results: dict) -> str:
+    """Plain sentences from the numbers: beta = 0 against the best beta > 0 and the base's default."""
+    pb = results["per_beta"]
+    zero = pb.get("0")
+    weighted = {k: v for k, v in pb.items() if v["beta"] > 0}
+    n = len(results["seeds"])
+    if zero is None or not weighted:
+        return "The sweep needs beta = 0 and at least one beta > 0 to say whether the depth head helps."
+    out = []
+    for m in ("unseen_objects", "unseen_sensors", "digit"):
+        z = zero[m]
+        if not np.isfinite(z["mean"]):
+            continue
+        best_k = min(weighted, key=lambda k: weighted[k][m]["mean"])
+        b = weighted[best_k][m]
+        rel = (b["mean"] - z["mean"]) / z["mean"] * 100
+        verdict = "helps" if rel < 0 else "does not help"
+        noise = ""
+        if n > 1:
+            spread = np.hypot(z["std"], b["std"])
+            resolved = abs(b["mean"] - z["mean"]) > spread
+            noise = f"; the gap is {'larger' if resolved else 'NOT larger'} than the seeds' spread ({spread:.2f})"
+        out.append(f"On {METRICS[m]} the depth head {verdict}: beta = 0 (no head) {z['mean']:.2f}% vs "
+                   f"{b['mean']:.2f}% at the best beta/alpha = {weighted[best_k]['ratio']:g} ({rel:+.0f}%){noise}.")
+    base_beta = f"{registry.get(results['base']).beta:g}"
+    if base_beta in weighted and base_beta != "0":
+        d = weighted[base_beta]
+        out.append(f"At the default beta = {base_beta} ({d['paper_name']}): unseen objects "
+                   f"{d['unseen_objects']['mean']:.2f}%, unseen sensors {d['unseen_sensors']['mean']:.2f}%.")
+    if n == 1:
+        out.append("One seed per beta: differences of a few tenths of a percent are within run-to-run noise "
+                   "(run --seeds 3 to measure it).")
+    return " ".join(out)
+
+
+def _table(results: dict) -> tuple[list, list, list]:
+    header = ["beta", "beta/alpha", "method", "depth head"] + [METRICS[m] for m in METRICS]
+    rows, csv_rows = [], []
+    for k, v in results["per_beta"].items():
+        rows.append([k, f"{v['ratio']:g}", v["paper_name"], "yes" if v["depth_head"] else "absent"]
+                    + [_fmt(v[m]) for m in METRICS])
+        csv_rows.append([v["beta"], v["ratio"], v["method"], int(v["depth_head"])]
+                        + [x for m in METRICS for x in (v[m]["mean"], v[m]["std"])])
+    csv_header = ["beta", "beta_over_alpha", "method", "depth_head"] + [f"{m}_{s}" for m in METRICS
+                                                                           for s in ("mean", "std")]
+    return header, rows, [csv_header, csv_rows]
+
+
+def write_all(results: dict, out: Path) -> None:
+    header, rows, (csv_header, csv_rows) = _table(results)
+    text = (f"# Loss-weight sweep: alpha * L1(force) + beta * MSE(depth), base {results['base']} "
+            f"(preset {results['preset']}, {len(results['seeds'])} seed(s), commit {results['commit'][:12]})\n\n"
+            f"Normalized L1 error %, mean ± std over seeds. beta = 0: {results['beta0']}.\n\n"
+            + common.md_table(header, rows) + "\n" + results["finding"] + "\n\n![sweep](sweep.png)\n")
+    common.write_text(out / "sweep.md", text)
+    common.write_csv(out / "sweep.csv", csv_header, csv_rows)
+    plot(results, out / "sweep.png")
+    common.write_json(out / "results.json", results)
+
+
+def plot(results: dict, path: Path) -> Path:
+    """Error against beta/alpha: beta = 0 in its own narrow panel, beta > 0 on a log axis; dots = seeds."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pb = results["per_beta"]
+    zero = pb.get("0")
+    pos = sorted((v for v in pb.values() if v["beta"] > 0), key=lambda v: v["ratio"])
+    shown = [m for m in ("unseen_objects", "unseen_sensors", "digit")
+             if any(np.isfinite(v[m]["mean"]) for v in pb.values())]
+    fig, axes = plt.subplots(1, 2 * len(shown), figsize=(4.6 * len(shown), 3.6), squeeze=False,
+                             gridspec_kw={"width_ratios": [1, 4] * len(shown)})
+    for i, m in enumerate(shown):
+        a0, a1 = axes[0, 2 * i], axes[0, 2 * i + 1]
+        if zero:
+            a0.errorbar([0], [zero[m]["mean"]], yerr=[zero[m]["std"]], fmt="s", color="C3", capsize=3)
+            a0.scatter([0] * len(zero["per_seed"]), [s[m] for s in zero["per_seed"]], s=10, color="k", alpha=0.5)
+        a0.set_xticks([0])
+        a0.set_xticklabels(["0\n(no head)"])
+        a0.set_xlim(-1, 1)
+        a0.set_ylabel(f"{METRICS[m]}\nnormalized L1 error (%)", fontsize=8)
+        if pos:
+            x = [v["ratio"] for v in pos]
+            a1.errorbar(x, [v[m]["mean"] for v in pos], yerr=[v[m]["std"] for v in pos], fmt="o-", color="C0",
+                        capsize=3, label="mean ± std over seeds")
+            for v in pos:
+                a1.scatter([v["ratio"]] * len(v["per_seed"]), [s[m] for s in v["per_seed"]], s=10, color="k",
+                           alpha=0.5)
+            a1.set_xscale("log")
+            if zero:
+                a1.axhline(zero[m]["mean"], color="C3", ls=":", lw=1, label="beta = 0")
+            a1.legend(fontsize=7)
+        a1.set_xlabel("beta / alpha (depth-loss weight)")
+        a1.sharey(a0)
+        a1.tick_params(labelleft=False)
+        a1.set_title(METRICS[m], fontsize=9)
+    fig.suptitle(f"Loss-weight sweep ({results['base']}, preset {results['preset']}, "
+                 f"{len(results['seeds'])} seed(s))", fontsize=10)
+    return save_png(fig, Path(path))
+
+
+def save_png(fig, path: Path) -> Path:
+    """tight layout, atomic write (tmp + rename), close."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.stem}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    tmp.replace(path)
+    return path
+
+
+if __name__ == "__main__":
+    main()
