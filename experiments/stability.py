@@ -23,7 +23,8 @@ import numpy as np
 
 from experiments import ablation, common
 from experiments import paper_numbers as P
-from experiments.sweep_loss import register_from, save_png
+from experiments.sweep_loss import register_from
+from experiments.tables import save_png
 from ffjax import registry
 
 SENSOR = "mini-1-gel1"

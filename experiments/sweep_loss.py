@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments import ablation, common
+from experiments import ablation, common, tables
 from experiments import paper_numbers as P
 from ffjax import registry
 
@@ -257,19 +257,7 @@ def plot(results: dict, path: Path) -> Path:
         a1.set_title(METRICS[m], fontsize=9)
     fig.suptitle(f"Loss-weight sweep ({results['base']}, preset {results['preset']}, "
                  f"{len(results['seeds'])} seed(s))", fontsize=10)
-    return save_png(fig, Path(path))
-
-
-def save_png(fig, path: Path) -> Path:
-    """tight layout, atomic write (tmp + rename), close."""
-    import matplotlib.pyplot as plt
-
-    fig.tight_layout()
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    tmp.replace(path)
-    return path
+    return tables.save_png(fig, Path(path))
 
 
 if __name__ == "__main__":

@@ -223,7 +223,7 @@ def plot_all(results: dict, out: Path) -> list[Path]:
     bars(ax, objs, lambda m, g: t1[m].get(g), {m: v for m, v in P.TABLE1.items()})
     ax.set_xticklabels([o.replace("_", " ") for o in objs], rotation=30, ha="right")
     ax.set_title("Table I: unseen objects (bars: ours; black ticks: the paper)")
-    paths.append(_save(fig, out / "table1.png"))
+    paths.append(save_png(fig, out / "table1.png"))
 
     t2 = results["table2"]
     keys = [P.sensor_label(s) for s in P.SENSORS] + ["mean"]
@@ -231,7 +231,7 @@ def plot_all(results: dict, out: Path) -> list[Path]:
     bars(ax, keys, lambda m, g: t2[m].get(g), {m: v for m, v in P.TABLE2.items()})
     ax.set_xticklabels(keys, rotation=30, ha="right")
     ax.set_title("Table II: trained on mini-1/gel-1 (bars: ours; black ticks: the paper)")
-    paths.append(_save(fig, out / "table2.png"))
+    paths.append(save_png(fig, out / "table2.png"))
 
     t3 = results["table3"]
     targets = [P.sensor_label(t) for t in P.CALIB_TARGETS]
@@ -249,11 +249,12 @@ def plot_all(results: dict, out: Path) -> list[Path]:
     np.atleast_1d(axes)[0].set_ylabel("normalized L1 error (%)")
     np.atleast_1d(axes)[0].legend(fontsize=7)
     fig.suptitle(f"Table III: calibration with {results['config']['data']['calib_samples']} Big Sphere presses")
-    paths.append(_save(fig, out / "table3.png"))
+    paths.append(save_png(fig, out / "table3.png"))
     return paths
 
 
-def _save(fig, path: Path) -> Path:
+def save_png(fig, path: Path) -> Path:
+    """Tight layout, atomic write (tmp + rename), close."""
     import matplotlib.pyplot as plt
 
     fig.tight_layout()

@@ -51,17 +51,23 @@ def _predict_fn(model):
     return jax.jit(lambda variables, x: model.apply(variables, x, train=False)["force"])
 
 
-def predict(model, variables, images, batch_size: int = 64) -> np.ndarray:
-    """Forces (N, 3) for preprocessed images (N, S, S, 3); the last batch is padded, so one compile."""
+def batched(fn, variables, images, batch_size: int = 64, width: int = 3) -> np.ndarray:
+    """fn(variables, chunk) over preprocessed images (N, S, S, 3) in fixed-size chunks; the last chunk is
+    zero-padded, so `fn` compiles once. Returns the stacked outputs (N, ...); (0, width) for no images."""
     images = np.asarray(images, np.float32)
-    fn, out = _predict_fn(model), []
+    out = []
     for start in range(0, len(images), batch_size):
         chunk = images[start : start + batch_size]
         n = len(chunk)
         if n < batch_size:
             chunk = np.concatenate([chunk, np.zeros((batch_size - n, *chunk.shape[1:]), chunk.dtype)])
         out.append(np.asarray(fn(variables, chunk))[:n])
-    return np.concatenate(out) if out else np.zeros((0, 3), np.float32)
+    return np.concatenate(out) if out else np.zeros((0, width), np.float32)
+
+
+def predict(model, variables, images, batch_size: int = 64) -> np.ndarray:
+    """Forces (N, 3) for preprocessed images (N, S, S, 3); the last batch is padded, so one compile."""
+    return batched(_predict_fn(model), variables, images, batch_size)
 
 
 def evaluate(model, variables, images, forces, force_min, force_max, batch_size: int = 64) -> dict:

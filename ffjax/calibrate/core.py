@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ffjax import metrics
 from ffjax.models import heads
 
 LAYERS = ("last", "regressor")
@@ -29,15 +30,7 @@ def _feature_fn(model):
 
 def features(model, variables, images, batch_size: int = 64) -> np.ndarray:
     """Backbone features (N, D) of preprocessed images (N, S, S, 3); padded last batch, one compile."""
-    fn, out = _feature_fn(model), []
-    images = np.asarray(images, np.float32)
-    for start in range(0, len(images), batch_size):
-        chunk = images[start : start + batch_size]
-        n = len(chunk)
-        if n < batch_size:
-            chunk = np.concatenate([chunk, np.zeros((batch_size - n, *chunk.shape[1:]), chunk.dtype)])
-        out.append(np.asarray(fn(variables, chunk))[:n])
-    return np.concatenate(out) if out else np.zeros((0, 0), np.float32)
+    return metrics.batched(_feature_fn(model), variables, images, batch_size, width=0)
 
 
 def trainable_mask(reg_params: dict, layers: str) -> dict:
