@@ -102,13 +102,18 @@ def _path_names(path) -> tuple[str, ...]:
 
 
 def learning_rate(base: float, cfg_train: dict, total_steps: int | None):
-    """Constant, or `warmup_cosine` (linear warmup from 0, cosine decay to 0 at `total_steps`)."""
+    """Constant, or `warmup_cosine` (linear warmup from 0, cosine decay to 0 at `total_steps`).
+
+    The training loop always knows `total_steps`. A state built without it (benchmarks, calibration
+    tools timing or fine-tuning a step at a time) gets the warmup and then the peak rate: there is no end
+    to decay towards.
+    """
     kind = cfg_train.get("schedule", "constant")
     if kind == "constant":
         return base
     if kind == "warmup_cosine":
         if not total_steps:
-            raise ValueError("schedule 'warmup_cosine' needs total_steps")
+            return optax.linear_schedule(0.0, base, max(int(cfg_train.get("warmup_steps", 0)), 1))
         warmup = min(int(cfg_train.get("warmup_steps", 0)), max(total_steps - 1, 0))
         return optax.warmup_cosine_decay_schedule(
             init_value=0.0, peak_value=base, warmup_steps=warmup, decay_steps=max(total_steps, warmup + 1)
