@@ -60,7 +60,8 @@ def arch_of(cfg: dict, method: str, size: int) -> dict:
         "backbone": spec.backbone,
         "vit": {k: m["vit"][k] for k in ("dim", "depth", "heads", "patch", "mlp_ratio", "layerscale")}
         | {"pos_grid": m["vit"].get("pos_grid")},
-        "resnet": {"widths": list(m["resnet"]["widths"]), "blocks": list(m["resnet"]["blocks"])},
+        "resnet": {"widths": list(m["resnet"]["widths"]), "blocks": list(m["resnet"]["blocks"]),
+                   "stem": m["resnet"].get("stem", "imagenet")},
         "regressor": list(m["regressor"]["widths"]),
         "decoder": ({"kind": m["decoder"]["kind"], "channels": list(m["decoder"]["channels"])}
                     if spec.depth_head else None),

@@ -121,12 +121,21 @@ class BasicBlock(nn.Module):
 
 
 class ResNet(nn.Module):
-    """torchvision ResNet-18 layout (imagenet stem), widths/blocks from the config."""
+    """torchvision ResNet-18 layout, widths/blocks/stem from the config (as ffjax.models.resnet).
 
-    def __init__(self, widths, blocks, **_):
+    stem "imagenet": conv 7x7 s2 + maxpool (stride 4); "small": conv 3x3 s1, no maxpool.
+    """
+
+    def __init__(self, widths, blocks, stem="imagenet", **_):
         super().__init__()
-        self.stem = nn.Sequential(nn.Conv2d(3, widths[0], 7, 2, 3, bias=False), nn.BatchNorm2d(widths[0]),
-                                  nn.ReLU(), nn.MaxPool2d(3, 2, 1))
+        if stem == "imagenet":
+            self.stem = nn.Sequential(nn.Conv2d(3, widths[0], 7, 2, 3, bias=False), nn.BatchNorm2d(widths[0]),
+                                      nn.ReLU(), nn.MaxPool2d(3, 2, 1))
+        elif stem == "small":
+            self.stem = nn.Sequential(nn.Conv2d(3, widths[0], 3, 1, 1, bias=False), nn.BatchNorm2d(widths[0]),
+                                      nn.ReLU())
+        else:
+            raise ValueError(f"unknown ResNet stem {stem!r}")
         layers, cin = [], widths[0]
         for i, (w, n) in enumerate(zip(widths, blocks)):
             for j in range(n):
