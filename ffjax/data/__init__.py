@@ -2,6 +2,7 @@
 statistics, and grain datasets.
 
     source = data.open_split("DIR/train")                  # or "my_recordings/data.csv"
+    source = data.open_split("my.csv", validate=True)      # check every row's files now (DataError names line)
     stats = data.Stats.compute(source, cfg["data"])
     ds = data.make_dataset(source, stats, 64, batch_size=64, seed=0)
     it = iter(ds); batch = next(it); state = it.get_state()  # it.set_state(state) resumes

@@ -77,7 +77,8 @@ def preprocess_depth(depth_mm: np.ndarray, stats, input_size: int) -> np.ndarray
     d = pad_to_square(d, batched=d.ndim == 3)
     d = np.stack([_resize(f, input_size) for f in d]) if d.ndim == 3 else _resize(d, input_size)
     lo, hi = float(_get(stats, "depth_min")), float(_get(stats, "depth_max"))
-    return np.clip((d - lo) / (hi - lo), 0.0, 1.0).astype(np.float32)
+    span = max(hi - lo, 1e-9)  # a train set of constant depth (no depth labels, depth_eps 0) would divide by 0
+    return np.clip((d - lo) / span, 0.0, 1.0).astype(np.float32)
 
 
 def depth_to_mm(depth_unit: np.ndarray, stats) -> np.ndarray:

@@ -10,7 +10,6 @@ from __future__ import annotations
 import bisect
 import csv
 import json
-import math
 import os
 from collections import OrderedDict
 from pathlib import Path
@@ -18,13 +17,21 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ffjax.data.validate import (
+    DataError,
+    check_depth_values,
+    depth_problem,
+    image_problem,
+    parse_ft_cell,
+    png_size,
+    report_bad_rows,
+    same_file_key,
+)
+
 SHARD_GLOB = "shard_*.npz"
+SHOW_SHARDS = 5
 CSV_NAME = "data.csv"
 BACKGROUND_NAME = "background.png"
-
-
-class DataError(ValueError):
-    """A split on disk is malformed; the message names the file (and row) at fault."""
 
 
 def read_rgb(path: str | os.PathLike, what: str = "image") -> np.ndarray:
@@ -49,21 +56,24 @@ def write_rgb(path: str | os.PathLike, image: np.ndarray) -> None:
     os.replace(tmp, path)
 
 
-def open_split(path: str | os.PathLike, background: str | os.PathLike | np.ndarray | None = None):
+def open_split(path: str | os.PathLike, background: str | os.PathLike | np.ndarray | None = None, *,
+               validate: bool = False, skip_bad_rows: bool = False):
     """Open a split: a shard directory (shard_*.npz), a release-layout CSV file, or a folder holding data.csv.
 
     `background` overrides the no-contact frame (a path or an RGB uint8 array); see CsvSource for the
-    order in which a CSV's background is otherwise found.
+    order in which a CSV's background is otherwise found. validate=True checks every row's files (or every
+    shard) up front, so a bad row fails now rather than mid-run; skip_bad_rows=True (CSV; implies
+    validate) drops bad rows instead, logging how many and why.
     """
     path = Path(path)
     if path.is_dir():
-        if any(path.glob(SHARD_GLOB)):
-            return ShardSource(path, background=background)
+        if any(path.glob(SHARD_GLOB)) or (path / "split.json").is_file():
+            return ShardSource(path, background=background, validate=validate)
         if (path / CSV_NAME).is_file():
-            return CsvSource(path / CSV_NAME, background=background)
+            return CsvSource(path / CSV_NAME, background=background, validate=validate, skip_bad_rows=skip_bad_rows)
         raise DataError(f"{path}: no {SHARD_GLOB} shards and no {CSV_NAME}; not a split")
     if path.suffix.lower() == ".csv":
-        return CsvSource(path, background=background)
+        return CsvSource(path, background=background, validate=validate, skip_bad_rows=skip_bad_rows)
     raise DataError(f"{path}: not a split directory or a .csv file")
 
 
@@ -88,23 +98,63 @@ class ShardSource:
     lives in memory after the first pass, a large one is best read shard-sequentially (read_range).
     """
 
-    def __init__(self, path, background=None, cache_bytes: int = 4 << 30):
+    def __init__(self, path, background=None, cache_bytes: int = 4 << 30, validate: bool = False):
         self.path = Path(path)
         self.files = sorted(self.path.glob(SHARD_GLOB))
+        self.info = self._read_manifest()
         if not self.files:
             raise DataError(f"{self.path}: no {SHARD_GLOB} files")
-        self.info = {}
-        if (self.path / "split.json").is_file():
-            self.info = json.loads((self.path / "split.json").read_text())
         counts = self.info.get("shard_counts")
-        if counts is None or len(counts) != len(self.files):
-            counts = [len(self._load_member(f, "force")) for f in self.files]
+        if counts is None or validate:
+            counts = self._check_shards(counts)
         self.offsets = np.concatenate([[0], np.cumsum(counts)]).astype(int).tolist()
+        if self.offsets[-1] == 0:
+            raise DataError(f"{self.path}: the split has no records (empty shards)")
         self.background = _background(background, self.path / BACKGROUND_NAME, str(self.path))
         if self.background is None:
             raise DataError(f"{self.path}: missing {BACKGROUND_NAME} (or pass background=...)")
         self.cache_bytes = cache_bytes
         self._cache: OrderedDict[int, dict] = OrderedDict()
+
+    def _read_manifest(self) -> dict:
+        """split.json (optional); its shard list must match the shard files present."""
+        file = self.path / "split.json"
+        if not file.is_file():
+            return {}
+        try:
+            info = json.loads(file.read_text())
+        except (OSError, ValueError) as e:
+            raise DataError(f"{file}: unreadable manifest ({e})") from e
+        counts = info.get("shard_counts") if isinstance(info, dict) else None
+        if counts is None:
+            return info if isinstance(info, dict) else {}
+        if not isinstance(counts, list) or not all(isinstance(c, int) and c >= 0 for c in counts):
+            raise DataError(f"{file}: shard_counts must be a list of record counts, got {counts!r}")
+        want = [self.path / f"shard_{k:05d}.npz" for k in range(len(counts))]
+        missing = [f.name for f in want if f not in self.files]
+        extra = [f.name for f in self.files if f not in want]
+        if missing or extra:
+            raise DataError(f"{file} lists {len(counts)} shards but the folder does not match: "
+                            f"missing {missing[:SHOW_SHARDS]}, unlisted {extra[:SHOW_SHARDS]} "
+                            f"(an interrupted generation? rerun it to finish the split)")
+        if "count" in info and info["count"] != sum(counts):
+            raise DataError(f"{file}: count {info['count']} != sum of shard_counts {sum(counts)}")
+        return info
+
+    def _check_shards(self, counts: list[int] | None) -> list[int]:
+        """Open every shard (force labels only) and compare its record count with the manifest's."""
+        found = []
+        for k, f in enumerate(self.files):
+            force = self._load_member(f, "force")
+            if force.ndim != 2 or force.shape[1] != 3:
+                raise DataError(f"{f}: force array is {force.shape}, expected (N, 3)")
+            bad = ~np.isfinite(force).all(axis=1)
+            if bad.any():
+                raise DataError(f"{f}: force label of record {int(np.argmax(bad))} (in this shard) is NaN/inf")
+            if counts is not None and counts[k] != len(force):
+                raise DataError(f"{f}: {len(force)} records, but {self.path / 'split.json'} says {counts[k]}")
+            found.append(len(force))
+        return found
 
     def __len__(self) -> int:
         return self.offsets[-1]
@@ -188,18 +238,11 @@ class ShardSource:
 
 
 def parse_ft(cell: str, where: str) -> np.ndarray:
-    """Parse an FT cell: 6 ("Fx Fy Fz Tx Ty Tz", the release) or 3 numbers; returns the force (3,)."""
-    parts = str(cell).replace(",", " ").split()
-    if len(parts) not in (3, 6):
-        raise DataError(f"{where}: FT cell {cell!r} has {len(parts)} values, "
-                        f"expected 6 (Fx Fy Fz Tx Ty Tz) or 3")
-    try:
-        values = [float(p) for p in parts]
-    except ValueError as e:
-        raise DataError(f"{where}: FT cell {cell!r} is not numeric") from e
-    if not all(math.isfinite(v) for v in values):
-        raise DataError(f"{where}: FT cell {cell!r} contains NaN or inf")
-    return np.asarray(values[:3], np.float32)
+    """Parse an FT cell: 6 ("Fx Fy Fz Tx Ty Tz", the release) or 3 finite numbers; returns the force (3,)."""
+    force, why = parse_ft_cell(cell)
+    if why:
+        raise DataError(f"{where}: {why}")
+    return force
 
 
 class CsvSource:
@@ -208,31 +251,23 @@ class CsvSource:
 
     The no-contact background is, in this order: the `background` argument (path or RGB array), a
     per-row `background` column (path; images are cached), or `background.png` beside the CSV.
-    FT cells are all parsed on open; images are read (and checked) when a record is read.
+    FT cells are all parsed on open (and rows are checked for duplicates); validate=True also checks every
+    row's image and depth file from their headers (exists, complete, right size), and skip_bad_rows=True
+    drops bad rows (logged; kept in `skipped` as (where, why)) instead of raising. Images are decoded, and
+    checked again, when a record is read.
     """
 
-    def __init__(self, csv_path, background=None):
+    def __init__(self, csv_path, background=None, validate: bool = False, skip_bad_rows: bool = False):
         self.csv_path = Path(csv_path)
         self.root = self.csv_path.parent
-        if not self.csv_path.is_file():
-            raise DataError(f"missing CSV: {self.csv_path}")
-        with open(self.csv_path, newline="") as f:
-            reader = csv.DictReader(f)
-            columns = [c.strip() for c in (reader.fieldnames or [])]
-            rows = [{k.strip(): (v or "").strip() for k, v in r.items() if k is not None} for r in reader]
+        columns, rows, lines = self._read()
         missing = [c for c in ("tactile", "FT") if c not in columns]
         if missing:
             raise DataError(f"{self.csv_path}: missing column(s) {missing}; found {columns}")
+        if not rows:
+            raise DataError(f"{self.csv_path}: no data rows (an empty split)")
         self.has_depth = "depth" in columns
         self._bg_column = "background" in columns and background is None
-        self.tactile = [r["tactile"] for r in rows]
-        self.depth_paths = [r.get("depth", "") for r in rows]
-        self.bg_paths = [r.get("background", "") for r in rows]
-        self.forces = np.stack([parse_ft(r["FT"], self._where(i)) for i, r in enumerate(rows)]) \
-            if rows else np.zeros((0, 3), np.float32)
-        for i, p in enumerate(self.tactile):
-            if not p:
-                raise DataError(f"{self._where(i)}: empty tactile path")
         self.background = None
         if not self._bg_column:
             self.background = _background(background, self.root / BACKGROUND_NAME, str(self.csv_path))
@@ -240,9 +275,85 @@ class CsvSource:
                 raise DataError(f"{self.csv_path}: no background: pass background=..., add a 'background' "
                                 f"column, or put {BACKGROUND_NAME} beside the CSV")
         self._bg_cache: dict[str, np.ndarray] = {}
+        self._bg_size: dict[str, tuple] = {}
+        self._row_ids, self._lines = list(range(len(rows))), lines
+        forces, problems = self._check_cells(rows, len(columns))
+        if validate or skip_bad_rows:
+            problems.update({i: why for i, r in enumerate(rows) if i not in problems
+                             for why in [self._check_files(r)] if why})
+        self.skipped = [(self._where(i), why) for i, why in sorted(problems.items())]
+        report_bad_rows(str(self.csv_path), self.skipped, len(rows), skip_bad_rows)
+        keep = [i for i in range(len(rows)) if i not in problems]
+        self._row_ids, self._lines = keep, [lines[i] for i in keep]
+        self.tactile = [rows[i]["tactile"] for i in keep]
+        self.depth_paths = [rows[i].get("depth", "") for i in keep]
+        self.bg_paths = [rows[i].get("background", "") for i in keep]
+        self.forces = np.stack([forces[i] for i in keep])
+
+    def _read(self) -> tuple[list[str], list[dict], list[int]]:
+        """Header, rows (cells stripped; None marks a missing cell, key None extra ones), line numbers."""
+        if not self.csv_path.is_file():
+            raise DataError(f"missing CSV: {self.csv_path}")
+        rows, lines = [], []
+        try:
+            with open(self.csv_path, newline="", encoding="utf-8-sig") as f:
+                reader = csv.DictReader(f)
+                columns = [c.strip() for c in (reader.fieldnames or [])]
+                reader.fieldnames = columns
+                for r in reader:
+                    rows.append({k: v if v is None or k is None else v.strip() for k, v in r.items()})
+                    lines.append(reader.line_num)
+        except (UnicodeDecodeError, csv.Error) as e:
+            raise DataError(f"{self.csv_path} line {len(lines) + 2}: not a readable CSV ({e})") from e
+        return columns, rows, lines
+
+    def _check_cells(self, rows: list[dict], n_columns: int) -> tuple[list, dict[int, str]]:
+        """Forces (None where bad) and {row: why} from the cells alone: cell count, paths, FT, duplicates."""
+        forces, problems, seen = [], {}, {}
+        for i, r in enumerate(rows):
+            n_cells = n_columns + len(r.get(None, [])) - sum(v is None for k, v in r.items() if k is not None)
+            force, why = None, None
+            if n_cells != n_columns:
+                why = f"{n_cells} cells, the header has {n_columns}"
+            elif not r["tactile"]:
+                why = "empty tactile path"
+            else:
+                force, why = parse_ft_cell(r["FT"])
+            if why is None:
+                key = same_file_key(self._resolve(r["tactile"]))
+                if key in seen:
+                    why = f"duplicate row: tactile image {r['tactile']} is also on line {seen[key]}"
+                seen.setdefault(key, self._lines[i])
+            forces.append(force if why is None else None)
+            if why:
+                problems[i] = why
+        return forces, problems
+
+    def _check_files(self, r: dict) -> str | None:
+        """Why a row's files are unusable (missing, truncated, wrong size), from headers only; None if fine."""
+        want, why = self._background_size(r)
+        if why:
+            return why
+        image = self._resolve(r["tactile"])
+        why = image_problem(image, want)
+        if why or not (self.has_depth and r.get("depth")):
+            return why
+        return depth_problem(self._resolve(r["depth"]), want or png_size(image))
+
+    def _background_size(self, r: dict) -> tuple[tuple | None, str | None]:
+        """(height, width) of this row's background when cheaply known, or (None, why it is unusable)."""
+        if self.background is not None:
+            return self.background.shape[:2], None
+        cell = r.get("background") or ""
+        if not cell:
+            return None, "empty background cell"
+        if cell not in self._bg_size:
+            path = self._resolve(cell)
+            self._bg_size[cell] = (png_size(path), image_problem(path, None, "background image"))
+        return self._bg_size[cell]
 
     def _where(self, i: int) -> str:
-        return f"{self.csv_path} row {i} (line {i + 2})"
+        return f"{self.csv_path} row {self._row_ids[i]} (line {self._lines[i]})"
 
     def _resolve(self, p: str) -> Path:
         q = Path(p)
@@ -286,7 +397,10 @@ class CsvSource:
             depth = np.squeeze(depth)
             if depth.shape != (h, w):
                 raise DataError(f"{where}: depth {dpath} is {depth.shape}, image is {(h, w)}")
-            depth = depth.astype(np.float32)
+            try:
+                depth = check_depth_values(depth, dpath)
+            except (DataError, ValueError, TypeError) as e:
+                raise DataError(f"{where}: {e}") from None
         else:
             depth = np.zeros((h, w), np.float32)
         return {"image": image, "background": background, "depth": depth, "force": self.forces[i]}

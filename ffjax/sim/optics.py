@@ -140,6 +140,11 @@ def render(sensor: Sensor, size: tuple[int, int], depth: np.ndarray, disp_px: np
            seed: int | None = 0) -> np.ndarray:
     """uint8 (H, W, 3) frame of the gel with surface displacement `depth` (mm, + = into the gel) and the
     pigment moved by disp_px (H, W, 2) pixels; camera noise from `seed` (None = no noise)."""
+    if np.shape(depth) != tuple(size) or not np.isfinite(depth).all():
+        raise ValueError(f"depth must be finite with shape {tuple(size)}, got shape {np.shape(depth)}"
+                         f"{'' if np.shape(depth) != tuple(size) else ' with NaN/inf values'}")
+    if disp_px is not None and (np.shape(disp_px) != (*size, 2) or not np.isfinite(disp_px).all()):
+        raise ValueError(f"disp_px must be finite with shape {(*size, 2)}, got shape {np.shape(disp_px)}")
     t = tables(sensor, tuple(size))
     img = t.flat.copy()
     win = _window(np.abs(depth) > 1e-5, 2)  # shading changes only where the surface moved

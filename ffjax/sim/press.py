@@ -54,7 +54,22 @@ def body_heights(shape: Shape, sensor: Sensor, size, x_mm, y_mm, yaw_deg, tilt_d
     return h
 
 
-def _check(sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg):
+def render_size_of(sensor: Sensor, size) -> tuple[int, int]:
+    """`size` (or the sensor's native size) as (H, W) ints; ValueError unless two whole numbers >= 2."""
+    if size is None:
+        return tuple(sensor.native_size)
+    try:
+        h, w = (float(v) for v in size)
+    except (TypeError, ValueError):
+        raise ValueError(f"size must be (height, width) in pixels, got {size!r}") from None
+    if not (h.is_integer() and w.is_integer() and h >= 2 and w >= 2):  # the shading needs a 2x2 gradient
+        raise ValueError(f"size must be two whole numbers >= 2, got {size!r}")
+    return int(h), int(w)
+
+
+def _check(sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed=0):
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     f = np.asarray(force, dtype=np.float64).reshape(-1)
     if f.shape != (3,):
         raise ValueError(f"force must be (fx, fy, fz), got {force!r}")
@@ -83,15 +98,18 @@ def press(shape: Shape | str, sensor: Sensor | str, force=(0.0, 0.0, 1.0), x_mm:
     """
     shape = get_shape(shape) if isinstance(shape, str) else shape
     sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
-    size = tuple(int(s) for s in (size or sensor.native_size))
+    size = render_size_of(sensor, size)
     s = _press(shape, sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed, size, noise)
     s.background = optics.background(sensor, size, noise)
     return s
 
 
 def _press(shape: Shape, sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed, size, noise) -> Sample:
-    tilt_deg = tuple(float(t) for t in tilt_deg)
-    f = _check(sensor, force, x_mm, y_mm, yaw_deg, tilt_deg)
+    tilt = np.asarray(tilt_deg, dtype=np.float64).reshape(-1)
+    if tilt.shape != (2,):
+        raise ValueError(f"tilt_deg must be (tilt_x, tilt_y) in degrees, got {tilt_deg!r}")
+    tilt_deg = tuple(float(t) for t in tilt)
+    f = _check(sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed)
     gel = sensor.gel
     pose = (float(x_mm), float(y_mm), float(yaw_deg), tilt_deg)
 
@@ -142,15 +160,16 @@ def press_batch(shape: Shape | str, sensor: Sensor | str, forces, x_mm=None, y_m
     """
     shape = get_shape(shape) if isinstance(shape, str) else shape
     sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
-    size = tuple(int(s) for s in (size or sensor.native_size))
-    forces = np.asarray(forces, dtype=np.float64).reshape(-1, 3)
+    size = render_size_of(sensor, size)
+    forces = np.asarray(forces, dtype=np.float64)
+    if forces.ndim != 2 or forces.shape[1] != 3:
+        raise ValueError(f"forces must be (N, 3), got shape {forces.shape}")
     n = len(forces)
-    zeros = np.zeros(n)
-    xs = zeros if x_mm is None else np.asarray(x_mm, float)
-    ys = zeros if y_mm is None else np.asarray(y_mm, float)
-    yaws = zeros if yaw_deg is None else np.asarray(yaw_deg, float)
-    tilts = np.zeros((n, 2)) if tilt_deg is None else np.asarray(tilt_deg, float).reshape(n, 2)
-    seeds = np.arange(n) if seeds is None else np.asarray(seeds)
+    xs, ys, yaws = (_per_press(v, n, name) for v, name in ((x_mm, "x_mm"), (y_mm, "y_mm"), (yaw_deg, "yaw_deg")))
+    tilts = np.zeros((n, 2)) if tilt_deg is None else np.asarray(tilt_deg, float)
+    if tilts.shape != (n, 2):
+        raise ValueError(f"tilt_deg must be ({n}, 2) for {n} forces, got shape {tilts.shape}")
+    seeds = np.arange(n) if seeds is None else _per_press(seeds, n, "seeds", dtype=np.int64)
     H, W = size
     out = {"image": np.empty((n, H, W, 3), np.uint8), "depth": np.empty((n, H, W), np.float32),
            "force": np.empty((n, 3), np.float32), "background": optics.background(sensor, size, noise), "meta": []}
@@ -159,6 +178,14 @@ def press_batch(shape: Shape | str, sensor: Sensor | str, forces, x_mm=None, y_m
         out["image"][i], out["depth"][i], out["force"][i] = s.image, s.depth, s.force
         out["meta"].append(s.meta)
     return out
+
+
+def _per_press(v, n: int, name: str, dtype=float) -> np.ndarray:
+    """A per-press array of length n (zeros for None); ValueError on a length mismatch."""
+    a = np.zeros(n, dtype) if v is None else np.asarray(v, dtype).reshape(-1)
+    if a.shape != (n,):
+        raise ValueError(f"{name} must have one value per force ({n}), got {a.size}")
+    return a
 
 
 def benchmark(size=(48, 64), n: int = 400, sensor: str = "mini-1", seed: int = 0, verbose: bool = True) -> dict:

@@ -25,6 +25,8 @@ def parse_args(argv=None):
     ap.add_argument("--data", help="dataset root holding train/ and val/, or a release-layout CSV "
                     "(default: simulate into data/<preset>)")
     ap.add_argument("--val", help="validation CSV (release layout) when --data is a CSV")
+    ap.add_argument("--skip-bad-rows", action="store_true", help="CSV data: drop rows whose files or FT cells "
+                    "are bad (count and first reasons logged) instead of stopping at the first one")
     ap.add_argument("--out", help="run folder (default: runs/<preset>-<method>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     ap.add_argument("--pretrained", help="pretrained backbone folder (python -m ffjax.train.pretrain --out DIR)")
@@ -62,7 +64,14 @@ def main(argv=None) -> int:
         print("error: --val goes with --data TRAIN.csv", file=sys.stderr)
         return 2
     if data_dir and str(data_dir).endswith(".csv"):
-        data_dir = {"train": data_dir, "val": args.val}
+        from ffjax import data
+
+        try:  # every row checked now, so a bad file stops the run before any work
+            data_dir = {k: data.open_split(v, validate=True, skip_bad_rows=args.skip_bad_rows) if v else None
+                        for k, v in (("train", data_dir), ("val", args.val))}
+        except data.DataError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
         if not args.val:
             print("note: no --val CSV: no validation, the best checkpoint is the last one", file=sys.stderr)
     elif data_dir is None:

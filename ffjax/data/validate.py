@@ -1,0 +1,140 @@
+"""Per-row checks of a split on disk, cheap enough to run over every row when a CSV is opened.
+
+Files are checked from their headers and trailers, not decoded: a PNG's size (IHDR chunk) and its IEND
+trailer (an interrupted copy or download loses the end of the file), and a depth .npy's header (shape,
+dtype) and length. Damage inside a file that passes these (a bad zlib stream mid-PNG) is still caught, with
+the same file and row, when the record is read. Every problem is reported as "FILE row R (line L): what".
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import struct
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger("ffjax.data")
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+PNG_TRAILER = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # the IEND chunk: length 0, type, CRC
+FT_NAMES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
+SHOW = 5  # reasons quoted in a bad-rows error or skip warning
+
+
+class DataError(ValueError):
+    """A split on disk is malformed; the message names the file (and row) at fault."""
+
+
+def parse_ft_cell(cell: str) -> tuple[np.ndarray | None, str | None]:
+    """(force (3,) float32, None) for a good FT cell ("Fx Fy Fz Tx Ty Tz" or "Fx Fy Fz"), else (None, why)."""
+    parts = str(cell).replace(",", " ").split()
+    if len(parts) not in (3, 6):
+        return None, f"FT cell {cell!r} has {len(parts)} values, expected 6 (Fx Fy Fz Tx Ty Tz) or 3"
+    values = []
+    for name, p in zip(FT_NAMES, parts):
+        try:
+            v = float(p)
+        except ValueError:
+            return None, f"FT cell {cell!r}: {name} {p!r} is not a number"
+        if not math.isfinite(v):
+            return None, f"FT cell {cell!r}: {name} is {'NaN' if math.isnan(v) else 'inf'}"
+        values.append(v)
+    if max(abs(v) for v in values[:3]) > np.finfo(np.float32).max:
+        return None, f"FT cell {cell!r}: force overflows float32"
+    return np.asarray(values[:3], np.float32), None
+
+
+def png_size(path: Path) -> tuple[int, int] | None:
+    """(height, width) from a PNG's header, or None when the file is not a PNG (or is unreadable)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(24)
+    except OSError:
+        return None
+    if not head.startswith(PNG_SIGNATURE) or head[12:16] != b"IHDR":
+        return None
+    w, h = struct.unpack(">II", head[16:24])
+    return h, w
+
+
+def image_problem(path: Path, want_hw: tuple[int, int] | None, what: str = "tactile image") -> str | None:
+    """Why `path` cannot be a (want_hw) frame, from its header and trailer; None when it looks fine.
+
+    PNGs get their size and completeness checked; other formats only their existence (they are
+    decoded, and checked, when read)."""
+    if not path.is_file():
+        return f"missing {what} {path}"
+    size = path.stat().st_size
+    if size == 0:
+        return f"empty {what} {path}"
+    try:
+        with open(path, "rb") as f:
+            head = f.read(24)
+            f.seek(max(size - len(PNG_TRAILER), 0))
+            tail = f.read()
+    except OSError as e:
+        return f"unreadable {what} {path} ({e})"
+    if not head.startswith(PNG_SIGNATURE):
+        return None
+    if head[12:16] != b"IHDR":
+        return f"unreadable {what} {path} (no PNG header)"
+    if tail != PNG_TRAILER:
+        return f"truncated {what} {path} (the PNG ends before its IEND chunk)"
+    w, h = struct.unpack(">II", head[16:24])
+    if want_hw is not None and (h, w) != tuple(want_hw):
+        return f"{what} {path} is {h}x{w} px, the background is {want_hw[0]}x{want_hw[1]} px"
+    return None
+
+
+def depth_problem(path: Path, want_hw: tuple[int, int] | None) -> str | None:
+    """Why `path` cannot be a depth map (.npy, mm) of size want_hw; reads only the header (memory-mapped)."""
+    if not path.is_file():
+        return f"missing depth file {path}"
+    try:
+        d = np.load(path, mmap_mode="r", allow_pickle=False)
+    except Exception as e:  # short file, bad header, pickled object array
+        return f"unreadable depth file {path} ({type(e).__name__}: {e})"
+    if not isinstance(d, np.ndarray):  # an .npz archive
+        d.close()
+        return f"depth file {path} is not a single .npy array"
+    shape, dtype = np.squeeze(d).shape, d.dtype
+    del d  # closes the memory map
+    if dtype.kind not in "fiu":
+        return f"depth file {path} has dtype {dtype}, expected a real number type (mm)"
+    if want_hw is not None and shape != tuple(want_hw):
+        return f"depth file {path} is {shape}, the image is {tuple(want_hw)}"
+    return None
+
+
+def check_depth_values(depth: np.ndarray, path: Path) -> np.ndarray:
+    """The loaded depth as float32; NaN/inf anywhere raises DataError (a load-time check)."""
+    depth = np.asarray(depth, np.float32)
+    bad = ~np.isfinite(depth)
+    if bad.any():
+        raise DataError(f"depth file {path} has {int(bad.sum())} NaN/inf values")
+    return depth
+
+
+def same_file_key(path: Path) -> str:
+    """A key under which two spellings of one path compare equal (for duplicate rows)."""
+    return os.path.normcase(os.path.normpath(os.path.abspath(path)))
+
+
+def report_bad_rows(source: str, problems: list[tuple[str, str]], n_rows: int, skip: bool) -> None:
+    """Raise one DataError naming the first bad row (and how many there are), or, when `skip`, log how
+    many rows are dropped with the first few reasons. `problems` is [(where, why), ...]."""
+    if not problems:
+        return
+    quoted = "; ".join(f"{w}: {why}" for w, why in problems[:SHOW])
+    more = f" (first {SHOW} shown)" if len(problems) > SHOW else ""
+    if not skip:
+        where, why = problems[0]
+        tail = "" if len(problems) == 1 else f"\n{len(problems)} bad rows in {source}{more}: {quoted}"
+        raise DataError(f"{where}: {why}{tail}\n(skip_bad_rows=True, or --skip-bad-rows on the command line, "
+                        f"drops bad rows and reports how many)")
+    if len(problems) == n_rows:
+        raise DataError(f"{source}: all {n_rows} rows are bad, nothing left to use{more}: {quoted}")
+    log.warning("%s: skipped %d of %d rows%s: %s", source, len(problems), n_rows, more, quoted)
