@@ -7,8 +7,23 @@
     model.last_out_of_range                           # (N,) bool: outside the training force range
     depth = model.predict_depth(frames)               # (N, H, W) mm, when the model has a depth head
 
-Channel order is RGB (what `ffjax.data` reads and trains on). Frames straight from OpenCV
-(`cv2.VideoCapture.read`, `cv2.imread`) are BGR: pass `bgr=True` to set_background/predict/predict_depth.
+Inputs: uint8 frames, (H, W, 3) or (N, H, W, 3), channel order RGB (what `ffjax.data` reads and trains on).
+Frames straight from OpenCV (`cv2.VideoCapture.read`, `cv2.imread`) are BGR: pass `bgr=True` to
+set_background/predict/predict_depth, or convert once with `frame[..., ::-1]` / cv2.cvtColor(f, cv2.COLOR_BGR2RGB).
+`ffjax.data.sources.read_rgb`, PIL and imageio give RGB already. BGR passed as RGB is not an error (it cannot
+be told apart per frame), but when the checkpoint has a reference background (see read_checkpoint: model.json
+"background_stats", a sensor.json, or a calibrated bundle's background.png) set_background warns if the
+reversed channel order matches it better.
+
+What is refused (raised) vs flagged (warned, per frame), so a control loop never dies on one bad frame:
+  raised   None, a non-uint8 dtype, a rank other than 3/4, a channel count other than 3, a frame size other
+           than the checkpoint's (strict_size=True) or the background's: these can never work
+  flagged  all-black ("dark"), saturated ("saturated") or frames that do not look like the background
+           ("background_mismatch": a background from another sensor, or the sensor moved / lighting changed):
+           forces are still returned; `last_frame_issues` ((N,) str, "" when fine) says which, and a
+           FrameWarning is given (a constant message: Python shows it once per call site, not every frame)
+  warned   set_background: a dark or saturated background, or one whose per-channel mean/std differ from the
+           checkpoint's recorded background (BackgroundWarning; compare with `background_check`)
 
 Preprocessing is `ffjax.data.preprocess_image` with the checkpoint's statistics, the same function training
 used (numpy/cv2, once per frame); the network is one jitted apply, compiled once per batch shape.
@@ -64,6 +79,77 @@ class ForceRangeWarning(UserWarning):
     """A prediction lies outside the force range the model was trained on."""
 
 
+class FrameWarning(UserWarning):
+    """A frame is dark, saturated, or does not look like the background; its forces are unreliable."""
+
+
+class BackgroundWarning(UserWarning):
+    """The background is dark/saturated or does not match the checkpoint's training background."""
+
+
+# Frame checks, in uint8 grey levels. Matching frames differ from their background by ~3 levels (median, noise
+# and the contact patch); a background of another sensor by ~15-60 (simulated Minis vs DIGIT).
+DARK_MEAN = 10.0  # mean level below this: lights off, lens covered, a black frame from a failing camera
+SATURATED_LEVEL, SATURATED_FRACTION = 250, 0.5  # over half the pixels clipped in some channel: over-exposed
+MISMATCH_MEDIAN = 12.0  # median |frame - background| above this: the background is not this sensor's
+BG_MEAN_TOL, BG_STD_RATIO = 15.0, 2.0  # background vs the recorded one: per-channel mean / std ratio tolerance
+
+
+def background_stats(background) -> dict:
+    """Per-channel mean and std (grey levels, RGB) of a uint8 (H, W, 3) background, as model.json records it."""
+    x = np.asarray(background, np.float64).reshape(-1, 3)
+    return {"mean": x.mean(0).round(2).tolist(), "std": x.std(0).round(2).tolist(), "channels": CHANNELS}
+
+
+def _level_issue(x: np.ndarray) -> str:
+    """"dark", "saturated" or "" for one uint8 (H, W, 3) frame (subsampled: this runs per live frame)."""
+    x = x[::4, ::4]
+    if x.mean() < DARK_MEAN:
+        return "dark"
+    if (x >= SATURATED_LEVEL).mean(axis=(0, 1)).max() > SATURATED_FRACTION:
+        return "saturated"
+    return ""
+
+
+def frame_issues(frames: np.ndarray, background: np.ndarray) -> list[str]:
+    """Per frame of (N, H, W, 3) uint8: "dark", "saturated", "background_mismatch" or "" (fine)."""
+    bg = background[::4, ::4].astype(np.int16)
+    out = []
+    for f in frames:
+        issue = _level_issue(f)
+        if not issue and np.median(np.abs(f[::4, ::4].astype(np.int16) - bg)) > MISMATCH_MEDIAN:
+            issue = "background_mismatch"
+        out.append(issue)
+    return out
+
+
+def background_check(background, reference: dict | None) -> list[str]:
+    """Problems with a uint8 RGB background (empty: none): dark/saturated, or per-channel statistics off
+    the reference (model.json "background_stats") by more than BG_MEAN_TOL levels / a BG_STD_RATIO factor."""
+    issue = _level_issue(background)
+    if issue:
+        return [f"the background is {issue} (mean level {background.mean():.0f}): take it with the sensor's "
+                f"lights on and nothing touching the gel"]
+    if not reference:
+        return []
+    got = background_stats(background)
+    ref_m, ref_s = np.asarray(reference["mean"], float), np.asarray(reference["std"], float)
+    m, sd = np.asarray(got["mean"]), np.asarray(got["std"])
+    ratio = np.maximum(sd, 1e-3) / np.maximum(ref_s, 1e-3)
+    if np.all(np.abs(m - ref_m) <= BG_MEAN_TOL) and np.all((ratio <= BG_STD_RATIO) & (ratio >= 1 / BG_STD_RATIO)):
+        return []
+    msg = (f"the background's per-channel mean {_r(m)} / std {_r(sd)} (RGB) differ from the checkpoint's "
+           f"training background {_r(ref_m)} / {_r(ref_s)} (tolerance +-{BG_MEAN_TOL:g} levels, std x{BG_STD_RATIO:g}):"
+           f" another sensor or gel? Forces may be off; calibrate for this sensor (python -m ffjax.calibrate)")
+    if np.abs(m[::-1] - ref_m).max() < np.abs(m - ref_m).max() and np.abs(m[::-1] - ref_m).max() <= BG_MEAN_TOL:
+        msg += "; the reversed channel order matches: is it BGR (OpenCV)? pass bgr=True"
+    return [msg]
+
+
+def _r(v) -> list[float]:
+    return [round(float(x), 1) for x in v]
+
+
 @dataclass
 class Checkpoint:
     """Everything a predictor needs, whichever folder it came from."""
@@ -78,6 +164,7 @@ class Checkpoint:
     kind: str  # "run" | "bundle" | "converted"
     path: str
     info: dict = field(default_factory=dict)
+    background_stats: dict | None = None  # the training background's per-channel mean/std, when recorded
 
     def build_model(self):
         from ffjax import models
@@ -110,13 +197,36 @@ def _frame_size(folder: Path, info: dict, override, fallback, fallback_source: s
 
 
 def read_checkpoint(path, which: str = "best", frame_size=None) -> Checkpoint:
-    """Read a training run, a bundle (model.json + variables.msgpack) or a converted release folder."""
+    """Read a training run, a bundle (model.json + variables.msgpack) or a converted release folder.
+
+    The training background's statistics ("background_stats": {"mean", "std"} per RGB channel) come from
+    model.json, else a sensor.json beside the weights, else a background.png there (calibrated bundles keep
+    the sensor's); set_background compares against them."""
+    ckpt = _read_checkpoint(Path(path), which, frame_size)
+    ckpt.background_stats = _reference_background(Path(path), ckpt.info)
+    return ckpt
+
+
+def _reference_background(folder: Path, info: dict) -> dict | None:
+    for source in (info, _read_json(folder / SENSOR_JSON) or {}):
+        if source.get("background_stats"):
+            return source["background_stats"]
+    if (folder / "background.png").is_file():
+        from ffjax.data.sources import read_rgb
+
+        try:
+            return background_stats(read_rgb(folder / "background.png"))
+        except Exception as e:  # noqa: BLE001 - a reference is optional: a bad file only loses the check
+            warnings.warn(f"{folder / 'background.png'} unreadable ({e}): no background check", stacklevel=3)
+    return None
+
+
+def _read_checkpoint(folder: Path, which: str, frame_size) -> Checkpoint:
     from flax import serialization
 
     import configs
     from ffjax import registry
 
-    folder = Path(path)
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such checkpoint folder")
     info = _read_json(folder / MODEL_JSON)
@@ -155,8 +265,12 @@ def read_checkpoint(path, which: str = "best", frame_size=None) -> Checkpoint:
         f"convert.json + {VARIABLES} (python -m ffjax.convert feelanyforce ...)")
 
 
-def save_bundle(out, ckpt: Checkpoint, variables: dict | None = None, frame_size=None, **extra) -> Path:
-    """Write a self-contained folder (model.json + variables.msgpack) that `load` accepts."""
+def save_bundle(out, ckpt: Checkpoint, variables: dict | None = None, frame_size=None, background=None,
+                **extra) -> Path:
+    """Write a self-contained folder (model.json + variables.msgpack) that `load` accepts.
+
+    background: the sensor's no-contact frame (uint8 RGB); its statistics are recorded so a predictor can
+    warn about a background from another sensor (default: the checkpoint's recorded ones, if any)."""
     import dataclasses
 
     from flax import serialization
@@ -176,6 +290,7 @@ def save_bundle(out, ckpt: Checkpoint, variables: dict | None = None, frame_size
         "force_range": {"min": list(ckpt.stats.force_min), "max": list(ckpt.stats.force_max)},
         "cfg": json.loads(json.dumps(ckpt.cfg, default=list)),
         "parent": {"path": ckpt.path, "kind": ckpt.kind},
+        "background_stats": background_stats(background) if background is not None else ckpt.background_stats,
         **extra,
     }
     (out / MODEL_JSON).write_text(json.dumps(info, indent=2) + "\n")
@@ -191,7 +306,8 @@ def _apply_fns(model):
 
 
 class Predictor:
-    """Forces from raw uint8 RGB frames; see the module docstring. Not thread-safe (last_* attributes)."""
+    """Forces from raw uint8 RGB frames (bgr=True for OpenCV's BGR); see the module docstring for what is
+    refused and what is flagged. Not thread-safe (last_* attributes)."""
 
     def __init__(self, ckpt: Checkpoint, strict_size: bool = True, range_margin: float = 0.05):
         self.checkpoint = ckpt
@@ -202,7 +318,9 @@ class Predictor:
         self._force_fn, depth_fn = _apply_fns(self.model)
         self._depth_fn = depth_fn if ckpt.spec.depth_head else None
         self.background: np.ndarray | None = None
+        self.background_issues: list[str] = []
         self.last_out_of_range = np.zeros((0,), bool)
+        self.last_frame_issues = np.zeros((0,), object)
         self.last_timing: dict = {}
 
     # -- what the checkpoint expects -------------------------------------------------------------------
@@ -244,19 +362,28 @@ class Predictor:
         return {"method": self.method, "kind": self.checkpoint.kind, "input_size": self.input_size,
                 "frame_size": list(self.frame_size), "frame_size_source": self.frame_size_source,
                 "channels": CHANNELS, "force_min": self.force_min.tolist(), "force_max": self.force_max.tolist(),
-                "depth_head": self.has_depth}
+                "depth_head": self.has_depth, "background_stats": self.checkpoint.background_stats}
 
     # -- inputs ----------------------------------------------------------------------------------------
     def _check(self, images, bgr: bool, what: str) -> np.ndarray:
+        """Raise for inputs that can never work (naming `what`, expected vs got); RGB uint8 out."""
+        if images is None:
+            raise TypeError(f"{what} is None, expected a uint8 array (H, W, 3) RGB (a failed camera read? check "
+                            f"the `ok` flag of cap.read())")
         x = np.asarray(images)
         if x.dtype != np.uint8:
-            raise TypeError(f"{what} must be uint8 (raw camera pixels), got {x.dtype}")
+            hint = (" (floats in [0, 1]? use (x * 255).round().astype(np.uint8))" if x.dtype.kind == "f" else
+                    " (16-bit frames? scale to 8 bits: (x >> 8).astype(np.uint8))" if x.dtype == np.uint16 else "")
+            raise TypeError(f"{what} must be uint8 (raw camera pixels), got {x.dtype}{hint}")
         if x.ndim not in (3, 4):
-            raise ValueError(f"{what} must be (H, W, 3) or (N, H, W, 3), got shape {x.shape}")
+            hint = " (a grayscale frame? this model needs the sensor's colour frames)" if x.ndim == 2 else ""
+            raise ValueError(f"{what} must be (H, W, 3) or (N, H, W, 3), got shape {x.shape}{hint}")
         if x.shape[-1] != 3:
             hint = " (BGRA/RGBA: drop the alpha channel)" if x.shape[-1] == 4 else \
-                " (grayscale: this model needs the sensor's colour frames)"
-            raise ValueError(f"{what} has {x.shape[-1]} channels, the model needs 3 ({CHANNELS}){hint}")
+                " (grayscale: this model needs the sensor's colour frames)" if x.shape[-1] == 1 else \
+                " (channels first? use (H, W, 3) order, e.g. x.transpose(1, 2, 0))" if x.shape[-3] == 3 else ""
+            raise ValueError(f"{what} has {x.shape[-1]} channels (shape {x.shape}), the model needs 3 ({CHANNELS})"
+                             f"{hint}")
         hw = tuple(x.shape[-3:-1])
         if hw != self.frame_size:
             msg = (f"{what} is {hw[0]}x{hw[1]} (HxW) but this checkpoint was trained on {self.frame_size[0]}x"
@@ -271,20 +398,38 @@ class Predictor:
         return np.ascontiguousarray(x)
 
     def set_background(self, background, bgr: bool = False) -> None:
-        """The no-contact frame (uint8 (H, W, 3)); re-take it when lighting or the gel changes."""
-        bg = self._check(background, bgr, "background")
+        """The no-contact frame (uint8 (H, W, 3), RGB; bgr=True for OpenCV frames); re-take it when lighting
+        or the gel changes. Warns (BackgroundWarning) when it is dark/saturated or its statistics differ from
+        the checkpoint's training background; `background_issues` keeps the messages."""
+        x = np.asarray(background) if background is not None else None
+        if x is not None and x.ndim == 4 and x.shape[0] == 1:
+            x = x[0]  # a batch of one frame is one frame
+        bg = self._check(x, bgr, "background")
         if bg.ndim != 3:
-            raise ValueError(f"background must be one frame (H, W, 3), got {bg.shape}")
+            raise ValueError(f"background must be one frame (H, W, 3), got shape {bg.shape} (average several "
+                             f"frames with np.mean(frames, 0).round().astype(np.uint8))")
+        self.background_issues = background_check(bg, self.checkpoint.background_stats)
+        for msg in self.background_issues:
+            warnings.warn(msg, BackgroundWarning, stacklevel=2)
         self.background = bg
 
     def preprocess(self, images, bgr: bool = False) -> np.ndarray:
-        """Raw frames -> the model input (N, S, S, 3) float32, exactly as in training."""
+        """Raw frames -> the model input (N, S, S, 3) float32, exactly as in training. Sets
+        `last_frame_issues` ((N,) str: "dark", "saturated", "background_mismatch" or "")."""
         if self.background is None:
             raise RuntimeError("no background: call set_background(no_contact_frame) first")
         x = self._check(images, bgr, "image")
         if x.shape[-3:] != self.background.shape:
-            raise ValueError(f"image {x.shape[-3:]} and background {self.background.shape} differ in size")
+            raise ValueError(f"image is {x.shape[-3]}x{x.shape[-2]} but the background is "
+                             f"{self.background.shape[0]}x{self.background.shape[1]} (HxW): take the background "
+                             f"from the same camera at the same resolution")
         batch = x[None] if x.ndim == 3 else x
+        self.last_frame_issues = np.array(frame_issues(batch, self.background), dtype=object)
+        if any(self.last_frame_issues):
+            kinds = sorted({i for i in self.last_frame_issues if i})
+            # constant text per kind: Python's default filter then shows it once, not every frame
+            warnings.warn(f"frame(s) flagged {'/'.join(kinds)}: forces for them are unreliable (see "
+                          f"last_frame_issues)", FrameWarning, stacklevel=3)
         return fdata.preprocess_image(batch, self.background, self.stats, self.input_size)
 
     # -- outputs ---------------------------------------------------------------------------------------
@@ -299,8 +444,10 @@ class Predictor:
     def predict(self, images, bgr: bool = False) -> np.ndarray:
         """(N, H, W, 3) or (H, W, 3) uint8 -> forces (N, 3) float32 in newtons (Fx, Fy, Fz).
 
-        Sets `last_out_of_range` ((N,) bool) and `last_timing` (preprocess_s, model_s); warns with
-        ForceRangeWarning when a prediction is outside the training range."""
+        Sets `last_out_of_range` ((N,) bool), `last_frame_issues` ((N,) str, see preprocess) and
+        `last_timing` (preprocess_s, model_s); warns with ForceRangeWarning when a prediction is outside the
+        training range and FrameWarning for flagged frames. Flagged frames still get forces (a control loop
+        decides what to do with them); only inputs that can never work raise."""
         t0 = time.perf_counter()
         x = self.preprocess(images, bgr)
         t1 = time.perf_counter()

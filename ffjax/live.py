@@ -16,6 +16,13 @@ Each frame prints `t  Fx Fy Fz  [OUT OF RANGE]  rate` (every --print-every frame
 (mp4v). t is seconds since start for a camera, the video's timestamp for --video, frame / --fps
 (default 25) for --images. --fps caps the loop rate (sleeps); --smooth adds an EMA or One-Euro filter
 (see ffjax.live_filters). --resize HxW|auto resizes frames (auto: the checkpoint's frame size).
+
+Camera faults: a failed read (dropped frame) is skipped and counted; --max-drops (30) failed reads in a row,
+or a read that raises, count as a disconnect: the camera is re-opened up to --reconnects (5) times, waiting
+--reconnect-wait (0.5 s) doubling to at most 8 s. If that fails the loop stops, forces.csv (line-buffered)
+and annotated.mp4 are closed, the reason is printed, and the exit code is 3. Dark, saturated or
+background-mismatched frames are predicted but logged when the condition starts and ends; the closing
+summary counts drops, reconnects and flagged frames.
 """
 
 from __future__ import annotations
@@ -37,23 +44,111 @@ from ffjax import inference, live_filters
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
-# -- frame sources: iterators of (t_seconds, rgb uint8, label) -----------------------------------------
-def camera_frames(index: int):
-    cap = cv2.VideoCapture(index)
-    if not cap.isOpened():
-        raise RuntimeError(f"cannot open camera {index} (is the sensor plugged in? try another index; on "
-                           f"Linux `v4l2-ctl --list-devices` lists them)")
-    t0 = time.monotonic()
-    try:
-        i = 0
-        while True:
-            ok, frame = cap.read()
-            if not ok:
-                raise RuntimeError(f"camera {index} stopped delivering frames")
-            yield time.monotonic() - t0, frame[..., ::-1], i
-            i += 1
-    finally:
-        cap.release()
+# -- frame sources: iterables of (t_seconds, rgb uint8, label) -----------------------------------------
+class CameraLost(RuntimeError):
+    """The camera stopped delivering frames and every reconnect attempt failed."""
+
+
+class CameraFrames:
+    """(t, rgb, i) from a camera that may drop frames or disconnect; `for t, rgb, i in CameraFrames(0)`.
+
+    A read that fails (ok False, None or an empty frame) is a drop: skipped and counted (`dropped`).
+    `max_drops` drops in a row, or an exception from read(), is a disconnect: the device is released and
+    re-opened up to `reconnects` times, waiting `backoff` s before the first try and doubling up to
+    `max_backoff`; the attempts start afresh once frames flow again. When all fail: CameraLost. A camera
+    that cannot be opened at all fails at once (wrong index, not plugged in). OpenCV gives BGR: converted
+    to RGB here. `open_fn` (cv2.VideoCapture) and `sleep` are for tests' fake cameras."""
+
+    def __init__(self, index, max_drops: int = 30, reconnects: int = 5, backoff: float = 0.5,
+                 max_backoff: float = 8.0, open_fn=None, sleep=None, log=print):
+        if max_drops < 1 or reconnects < 0 or backoff < 0:
+            raise ValueError(f"need max_drops >= 1, reconnects >= 0, backoff >= 0; got {max_drops}, {reconnects}, "
+                             f"{backoff}")
+        self.index, self.max_drops, self.reconnects = index, int(max_drops), int(reconnects)
+        self.backoff, self.max_backoff = float(backoff), float(max_backoff)
+        # looked up at use, not at import: tests (and users) may swap cv2.VideoCapture / time.sleep
+        self.open_fn = open_fn or (lambda i: cv2.VideoCapture(i))
+        self.sleep = sleep or (lambda s: time.sleep(s))
+        self.log = log
+        self.dropped = self.disconnects = self.reconnected = 0
+        self._cap = None
+
+    def _open(self):
+        """An opened capture, or None (a failed open is not an error while reconnecting)."""
+        try:
+            cap = self.open_fn(self.index)
+        except Exception:  # noqa: BLE001 - a driver may raise anything while the device is gone
+            return None
+        if cap is not None and cap.isOpened():
+            return cap
+        self._release(cap)
+        return None
+
+    @staticmethod
+    def _release(cap) -> None:
+        try:
+            if cap is not None:
+                cap.release()
+        except Exception:  # noqa: BLE001 - releasing a vanished device must not hide why we stopped
+            pass
+
+    def _read(self):
+        """(rgb frame or None, exception or None)."""
+        try:
+            got = self._cap.read()
+        except Exception as e:  # noqa: BLE001 - USB unplugged mid-read raises cv2.error or OSError
+            return None, e
+        ok, frame = got if isinstance(got, tuple) and len(got) == 2 else (False, None)
+        if not ok or frame is None or getattr(frame, "size", 0) == 0:
+            return None, None
+        return frame[..., ::-1], None
+
+    def _reconnect(self, reason: str) -> None:
+        """Re-open with backoff, or raise CameraLost."""
+        self.disconnects += 1
+        self._release(self._cap)
+        self._cap, waited = None, 0.0
+        self.log(f"camera {self.index}: {reason}; reconnecting (up to {self.reconnects} attempts)")
+        for attempt in range(1, self.reconnects + 1):
+            wait = min(self.backoff * 2 ** (attempt - 1), self.max_backoff)
+            self.sleep(wait)
+            waited += wait
+            self._cap = self._open()
+            if self._cap is not None:
+                self.reconnected += 1
+                self.log(f"camera {self.index}: reconnected (attempt {attempt})")
+                return
+        raise CameraLost(f"camera {self.index} lost ({reason}); {self.reconnects} reconnect attempts over "
+                         f"{waited:.1f} s failed (is it unplugged? check the cable / `v4l2-ctl --list-devices`)")
+
+    def __iter__(self):
+        self._cap = self._open()
+        if self._cap is None:
+            raise RuntimeError(f"cannot open camera {self.index} (is the sensor plugged in? try another index; "
+                               f"on Linux `v4l2-ctl --list-devices` lists them)")
+        t0, i, in_a_row = time.monotonic(), 0, 0
+        try:
+            while True:
+                frame, err = self._read()
+                if frame is not None:
+                    in_a_row = 0
+                    yield time.monotonic() - t0, frame, i
+                    i += 1
+                    continue
+                self.dropped += 1
+                in_a_row += 1
+                if err is not None or in_a_row >= self.max_drops:
+                    self._reconnect(f"read raised {type(err).__name__}: {err}" if err is not None else
+                                    f"{in_a_row} failed reads in a row")
+                    in_a_row = 0
+        finally:
+            self._release(self._cap)
+            self._cap = None
+
+
+def camera_frames(index: int, **kw) -> CameraFrames:
+    """Frames from video device `index`, surviving drops and disconnects (see CameraFrames)."""
+    return CameraFrames(index, **kw)
 
 
 def video_frames(path):
@@ -160,10 +255,13 @@ class _Window:
 
 def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=None, warmup=0, bg_frames=1,
         background=None, fps_cap=None, print_every=1, max_frames=None, resize=None, log=print) -> dict:
-    """Drive `pred` over `frames` (iterator of (t, rgb, label)); returns a summary dict.
+    """Drive `pred` over `frames` (iterable of (t, rgb, label)); returns a summary dict.
 
     Frames before `warmup` are dropped; the next `bg_frames` are averaged into the background (unless
-    `background` is given) and then predicted like every later frame."""
+    `background` is given) and then predicted like every later frame. A None/empty frame is skipped and
+    counted; a CameraLost from the source ends the loop cleanly (summary "stopped": "camera_lost", "error").
+    Dark, saturated or background-mismatched frames are still predicted, logged when the issue starts, and
+    counted in summary "flagged". forces.csv is line-buffered, so a crash or kill loses at most one row."""
     resize_fn = _resizer(resize, pred)
     retake = {"flag": background is None}
     if background is not None:
@@ -178,15 +276,19 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        csv_file = open(out / "forces.csv", "w", newline="")
+        csv_file = open(out / "forces.csv", "w", newline="", buffering=1)  # line-buffered: a kill loses <= 1 row
         rows = csv.writer(csv_file)
         rows.writerow(["t", "fx", "fy", "fz", "out_of_range", "frame"]
                       + (["fx_raw", "fy_raw", "fz_raw"] if smoother else []))
     n_done, n_oor, skipped, pending = 0, 0, 0, []
     lat, rate, t_start, t_prev, t_first = [], None, time.perf_counter(), None, None
+    empty, flagged, last_issue, stopped, error = 0, {}, "", "end", None
     try:
         for t, frame, label in frames:
             loop_t0 = time.perf_counter()
+            if frame is None or np.size(frame) == 0:  # a source that yields its failed reads: skip, count
+                empty += 1
+                continue
             if skipped < warmup and pred.background is None:
                 skipped += 1
                 continue
@@ -206,11 +308,18 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                 todo = [(t, frame, label)]
             for t_i, f_i, lab in todo:
                 p0 = time.perf_counter()
-                with warnings.catch_warnings():  # the out_of_range column / tag reports it per frame
+                with warnings.catch_warnings():  # reported per frame below (out_of_range column, flag log)
                     warnings.simplefilter("ignore", inference.ForceRangeWarning)
+                    warnings.simplefilter("ignore", inference.FrameWarning)
                     raw = pred.predict(f_i)[0]
                 lat.append(time.perf_counter() - p0)
                 oor = bool(pred.last_out_of_range[0])
+                issue = str(pred.last_frame_issues[0])
+                if issue:
+                    flagged[issue] = flagged.get(issue, 0) + 1
+                if issue != last_issue:  # log changes only: a covered lens for a minute is two lines
+                    log(f"frame {lab}: " + (f"{issue} (forces unreliable)" if issue else f"{last_issue} cleared"))
+                    last_issue = issue
                 force = smoother(t_i, raw) if smoother is not None else raw
                 n_done += 1
                 n_oor += oor
@@ -240,11 +349,15 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                         if key == ord("b"):
                             retake["flag"] = True
             if max_frames is not None and n_done >= max_frames:
+                stopped = "max_frames"
                 break
             if fps_cap:
                 time.sleep(max(0.0, 1.0 / fps_cap - (time.perf_counter() - loop_t0)))
     except KeyboardInterrupt:
-        pass
+        stopped = "interrupted"
+    except CameraLost as e:  # the source gave up reconnecting: stop here, everything so far is written
+        stopped, error = "camera_lost", str(e)
+        log(f"stopping: {e}")
     finally:
         if writer is not None:
             writer.release()
@@ -259,7 +372,10 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
     rate_hz = (n_done - 1) / (t_prev - t_first) if n_done > 1 and t_prev > t_first else 0.0
     summary = {"frames": n_done, "out_of_range": n_oor, "wall_s": wall, "rate_hz": rate_hz,
                "predict_ms_median": 1e3 * float(np.median(lat)) if lat else None,
-               "background_taken": pred.background is not None}
+               "background_taken": pred.background is not None, "stopped": stopped, "error": error,
+               "dropped": empty + int(getattr(frames, "dropped", 0)),
+               "reconnects": int(getattr(frames, "reconnected", 0)),
+               "flagged": flagged}
     if n_done == 0 and pred.background is None:
         log("no frame was predicted: the source ended before a background was taken "
             f"(warmup {warmup}, bg-frames {bg_frames})")
@@ -293,6 +409,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-frames", type=int, default=None, help="stop after this many predictions")
     p.add_argument("--print-every", type=int, default=1, help="print every Nth frame (0: never)")
     p.add_argument("--which", default="best", choices=("best", "latest"))
+    cam = p.add_argument_group("camera faults (--camera)")
+    cam.add_argument("--max-drops", type=int, default=30, help="failed reads in a row that count as a "
+                     "disconnect (single failed reads are skipped and counted)")
+    cam.add_argument("--reconnects", type=int, default=5, help="re-open attempts per disconnect before exiting")
+    cam.add_argument("--reconnect-wait", type=float, default=0.5, help="seconds before the first re-open; "
+                     "doubles per attempt, at most 8 s")
     return p
 
 
@@ -307,7 +429,9 @@ def main(argv=None) -> int:
 
         background = _resizer(a.resize, pred)(read_rgb(a.background, "background"))
     if a.camera is not None:
-        frames, warmup, bg_frames = camera_frames(a.camera), 30, 10
+        frames = camera_frames(a.camera, max_drops=a.max_drops, reconnects=a.reconnects, backoff=a.reconnect_wait,
+                               log=lambda m: print(m, file=sys.stderr, flush=True))
+        warmup, bg_frames = 30, 10
     elif a.video:
         frames, warmup, bg_frames = video_frames(a.video), 0, 1
     else:
@@ -324,6 +448,14 @@ def main(argv=None) -> int:
     print(f"{summary['frames']} frames in {summary['wall_s']:.1f} s ({summary['rate_hz']:.1f} Hz after the first), "
           f"model {summary['predict_ms_median'] or 0:.2f} ms/frame median, "
           f"{summary['out_of_range']} out of range" + (f"; wrote {a.out}/forces.csv" if a.out else ""))
+    faults = [f"{summary['dropped']} dropped frames"] * bool(summary["dropped"]) + \
+        [f"{summary['reconnects']} reconnects"] * bool(summary["reconnects"]) + \
+        [f"{n} {k}" for k, n in summary["flagged"].items()]
+    if faults:
+        print("faults: " + ", ".join(faults), flush=True)
+    if summary["stopped"] == "camera_lost":
+        print(f"error: {summary['error']}; forces up to the loss are in the CSV", file=sys.stderr, flush=True)
+        return 3
     return 0 if summary["frames"] else 1
 
 
