@@ -42,6 +42,14 @@ def get(preset: str, overrides: dict[str, Any] | None = None) -> dict:
     return cfg
 
 
+def from_cli(parser, preset: str, overrides: list[str]) -> dict:
+    """get() for a CLI: `--set KEY=VALUE` strings in; a bad key or value exits via parser.error (usage, code 2)."""
+    try:
+        return get(preset, dict(parse_override(s) for s in overrides))
+    except ConfigError as e:
+        parser.error(str(e))
+
+
 def _leaves(cfg: dict, prefix: str = "") -> list[str]:
     out = []
     for k, v in cfg.items():

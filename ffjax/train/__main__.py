@@ -42,7 +42,9 @@ def parse_args(argv=None):
     )
     ap.add_argument("--max-steps", type=int, help="stop after this many steps (checkpointed; --resume goes on)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    args.cfg = configs.from_cli(ap, args.preset, args.overrides)  # a bad --set stops here, before any work
+    return args
 
 
 def describe(val: dict | None) -> str:
@@ -57,7 +59,7 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     from ffjax import registry, train
 
-    cfg = configs.get(args.preset, dict(configs.parse_override(o) for o in args.overrides))
+    cfg = args.cfg
     spec = registry.get(args.method)
     data_dir = args.data
     if args.val and not (data_dir and str(data_dir).endswith(".csv")):

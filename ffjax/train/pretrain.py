@@ -536,7 +536,7 @@ def main(argv=None) -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
-    cfg = configs.get(args.preset, dict(configs.parse_override(s) for s in args.set))
+    cfg = configs.from_cli(ap, args.preset, args.set)
     out = Path(args.out or Path("data") / args.preset / "pretrained")
     for kind in KINDS if args.backbone == "all" else (args.backbone,):
         folder = ensure(cfg, kind, run_dir(out, kind), force=args.force, progress=not args.quiet)
