@@ -86,10 +86,12 @@ def test_parse_override():
             configs.parse_override(bad)
 
 
-def test_train_cli_rejects_before_any_work(tmp_path):
+def test_train_cli_rejects_before_any_work(tmp_path, capsys):
     from ffjax.train import __main__ as cli
 
     out = tmp_path / "run"
-    with pytest.raises(configs.ConfigError, match="train.batch_size must be >= 1"):
+    with pytest.raises(SystemExit) as exit_:
         cli.main(["--preset", "smoke", "--method", "dino_r", "--out", str(out), "--set", "train.batch_size=0"])
+    assert exit_.value.code == 2  # argparse usage error, no traceback
+    assert "train.batch_size must be >= 1" in capsys.readouterr().err
     assert not out.exists() and not (tmp_path / "data").exists()
