@@ -11,7 +11,12 @@ shard folder. A seeded random --holdout fraction is kept aside; the rest trains:
   --layers regressor  the whole regressor head: a different sensor type (e.g. DIGIT)
 The backbone is frozen, so its features are computed once and only the head trains (ffjax.calibrate.core).
 Reported before and after on the held-out part: normalized L1 % (per axis, divided by the ORIGINAL training
-force range, as everywhere in ffjax) and MAE in newtons. --out gets a new self-describing folder
+force range, as everywhere in ffjax) and MAE in newtons. The held-out frames are presses of the same objects
+as the fitting frames: they measure the fit, not the transfer to other shapes. With a single calibration object
+(the paper's Big Sphere) the head also learns that object's own error and passes it to every other shape: record
+presses of a few different shapes (flat and round), and calibrate only when the new sensor's error on the object
+differs from the training sensor's on the same object (see README, Table III).
+--out gets a new self-describing folder
 (model.json, variables.msgpack, calibration.json, background.png) that inference.load / ffjax.live /
 ffjax.export accept; its expected frame size is the calibration frames'. The checkpoint is never modified.
 """
@@ -121,7 +126,8 @@ def format_report(r: dict) -> str:
         "             nL1 %   (Fx     Fy     Fz)      MAE N (Fx     Fy     Fz)",
         line("before", r["holdout_before"]),
         line("after", r["holdout_after"]),
-        "  (nL1: mean |error| / the training force range per axis, in %)",
+        "  (nL1: mean |error| / the training force range per axis, in %; held-out frames are of the calibration"
+        " objects, so they do not show how other shapes fare)",
     ])
 
 
