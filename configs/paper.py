@@ -31,6 +31,8 @@ CONFIG = {
         "warmup_steps": 1000,
         "ckpt_every": 2000,
         "grad_clip": 0.0,
+        # a NaN/inf loss or gradient: "stop" (raise, naming the step and batch) or "skip" (drop that update)
+        "nonfinite": "stop",
     },
     "pretrain": {
         "steps": 0, "batch_size": 128, "lr": 5e-4, "corpus_size": 0, "out_dim": 65536,

@@ -37,6 +37,8 @@ CONFIG = {
         "warmup_steps": 50,
         "ckpt_every": 200,
         "grad_clip": 0.0,
+        # a NaN/inf loss or gradient: "stop" (raise, naming the step and batch) or "skip" (drop that update)
+        "nonfinite": "stop",
     },
     "pretrain": {
         "steps": 180, "batch_size": 32, "lr": 5e-4, "corpus_size": 6000, "out_dim": 1024,

@@ -31,6 +31,8 @@ CONFIG = {
         "warmup_steps": 2,
         "ckpt_every": 5,
         "grad_clip": 0.0,
+        # a NaN/inf loss or gradient: "stop" (raise, naming the step and batch) or "skip" (drop that update)
+        "nonfinite": "stop",
     },
     "pretrain": {
         "steps": 4, "batch_size": 8, "lr": 5e-4, "corpus_size": 32, "out_dim": 64,

@@ -53,20 +53,24 @@ def fingerprint(*parts) -> str:
 
 
 def write_json(path, obj) -> None:
-    """Write JSON atomically (tmp + rename): a kill never leaves a half-written results file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(json.dumps(obj, indent=1, default=_jsonable))
-    os.replace(tmp, path)
+    """Write JSON atomically (tmp + fsync + rename): a kill never leaves a half-written results file."""
+    write_text(path, json.dumps(obj, indent=1, default=_jsonable))
 
 
 def write_text(path, text: str) -> None:
+    """Write text atomically: the old file or the new one survives a kill or a full disk, never a part."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def read_json(path):

@@ -174,7 +174,11 @@ class _Archive:
         self.storages: dict[str, _Storage] = {}
 
     def storage_bytes(self, key: str, dtype: np.dtype) -> np.ndarray:
-        raw = self.zip.read(f"{self.prefix}data/{key}")
+        try:
+            raw = self.zip.read(f"{self.prefix}data/{key}")
+        except (KeyError, zipfile.BadZipFile, EOFError, OSError) as e:
+            raise ValueError(f"{self.path}: tensor storage data/{key} is missing or unreadable ({e}); the file is "
+                             "partial or corrupt (an interrupted download or copy?)") from e
         array = np.frombuffer(raw, dtype=dtype.newbyteorder(">") if self.big_endian else dtype)
         return array.astype(dtype) if self.big_endian else array
 
@@ -220,12 +224,27 @@ def load_torch(path) -> object:
     """Unpickle a `torch.save` zip file safely; tensors come back as lazy `TensorRef`s."""
     path = Path(path)
     if not zipfile.is_zipfile(path):
+        with open(path, "rb") as f:
+            head = f.read(4)
+        if head.startswith(b"PK"):
+            raise ValueError(f"{path}: a truncated or corrupt zip (partial download or copy?); fetch it again")
         raise ValueError(
-            f"{path}: not a zip-format torch checkpoint. Legacy (torch < 1.6) pickles are not read; re-save "
-            "it with a current torch (torch.save) or as .safetensors"
+            f"{path}: not a zip-format torch checkpoint. Legacy (torch < 1.6) pickles are not read, since "
+            "that would need unrestricted unpickling; re-save it with a current torch (torch.save) or as "
+            ".safetensors"
         )
-    archive = _Archive(path)
-    return _SafeUnpickler(archive.zip.read(archive.prefix + "data.pkl"), archive).load()
+    try:
+        archive = _Archive(path)
+        data = archive.zip.read(archive.prefix + "data.pkl")
+    except (zipfile.BadZipFile, EOFError, OSError) as e:
+        raise ValueError(f"{path}: a corrupt torch zip archive ({e}); fetch or save it again") from e
+    try:
+        return _SafeUnpickler(data, archive).load()
+    except (UnsafePickleError, ValueError):
+        raise
+    except (pickle.UnpicklingError, EOFError, AttributeError, IndexError, TypeError) as e:
+        raise ValueError(f"{path}: its data.pkl does not unpickle as a state dict ({type(e).__name__}: {e}); "
+                         "partial, corrupt or not a torch weight file") from e
 
 
 def load(path) -> object:
@@ -236,7 +255,10 @@ def load(path) -> object:
     if path.suffix == ".safetensors":
         from safetensors.numpy import load_file
 
-        return load_file(str(path))
+        try:
+            return load_file(str(path))
+        except Exception as e:  # safetensors raises its own SafetensorError on truncated headers/data
+            raise ValueError(f"{path}: not a readable .safetensors file ({e}); partial or corrupt?") from e
     return load_torch(path)
 
 

@@ -13,15 +13,19 @@ region that keeps the shape's 15 N footprint on the pad; yaw uniform; roll/pitch
 noise (robot compliance, friction), clipped to +-shear_max; the simulator caps it at mu * Fz.
 
 Deterministic from cfg["seed"]: every split has its own random stream and its own block of render
-seeds (train, val and test seeds are disjoint). Each shard is written atomically and skipped when
-present, so a killed run resumes; a different config refuses to touch DIR unless force=True.
+seeds (train, val and test seeds are disjoint). Each shard is written atomically (temp file, fsync,
+os.replace) and skipped when present and readable, so a killed run resumes: finished shards are kept,
+the one being written is redone. A different config refuses to touch DIR unless force=True. An
+unwritable DIR fails before any rendering; a full disk stops with a message, finished shards intact.
 """
 
 from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import contextlib
 import dataclasses
+import errno
 import functools
 import io
 import json
@@ -219,22 +223,60 @@ def render_shard(spec: SplitSpec, p: dict, lo: int, hi: int, size) -> dict:
 def save_npz(path, arrays: dict, compress: bool = COMPRESS) -> None:
     """np.savez(_compressed), but byte-reproducible (fixed zip timestamps) and atomic (tmp + os.replace)."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
-    with zipfile.ZipFile(tmp, "w", method, allowZip64=True) as zf:
-        for key, arr in arrays.items():
-            buf = io.BytesIO()
-            np.lib.format.write_array(buf, np.asarray(arr), allow_pickle=False)
-            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = method
-            zf.writestr(info, buf.getvalue())
-    os.replace(tmp, path)
+
+    def write(f):
+        with zipfile.ZipFile(f, "w", method, allowZip64=True) as zf:
+            for key, arr in arrays.items():
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, np.asarray(arr), allow_pickle=False)
+                info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+                info.compress_type = method
+                zf.writestr(info, buf.getvalue())
+
+    _atomic_write(path, write, "wb")
 
 
 def _write_text(path: Path, text: str) -> None:
+    _atomic_write(path, lambda f: f.write(text), "w")
+
+
+def _atomic_write(path: Path, write, mode: str) -> None:
+    """write(f) into a temp file, fsync, rename over `path`: a kill or a full disk never leaves a part."""
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    try:
+        with open(tmp, mode) as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        why = "the disk is full" if e.errno == errno.ENOSPC else (e.strerror or str(e))
+        raise OSError(e.errno, f"could not write {path}: {why}; finished shards are kept, rerun the same "
+                               f"command to continue") from e
+
+
+def _shard_ok(path: Path) -> bool:
+    """A shard is done when it is there and its zip directory reads (cheap: no arrays are loaded)."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            return "force.npy" in zf.namelist()
+    except (OSError, zipfile.BadZipFile):
+        return False
+
+
+def check_writable(out: Path) -> None:
+    """Fail before any rendering when `out` cannot be created or written."""
+    probe = out / f".write_probe{os.getpid()}"
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe.write_bytes(b"0")
+    except OSError as e:
+        raise OSError(e.errno, f"dataset folder {out} is not writable: {e.strerror or e}") from e
+    finally:
+        with contextlib.suppress(OSError):  # e.g. the parent is a file: nothing was created
+            probe.unlink()
 
 
 def _shard_task(args) -> int:
@@ -281,6 +323,7 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
 
     out = Path(out)
     g = gen_config(cfg)
+    check_writable(out)
     _prepare(out, g, force)
     specs = split_specs(cfg)
     size, shard = tuple(g["data"]["render_size"]), int(g["data"]["shard_size"])
@@ -298,7 +341,7 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
                 "seed": g["seed"], "seed_block": spec.index}
         splits[spec.name] = info
         total += spec.count
-        todo = [(k, a, b) for k, (a, b) in enumerate(bounds) if not (folder / f"shard_{k:05d}.npz").is_file()]
+        todo = [(k, a, b) for k, (a, b) in enumerate(bounds) if not _shard_ok(folder / f"shard_{k:05d}.npz")]
         if not (folder / "split.json").is_file():
             _write_text(folder / "split.json", json.dumps(info, indent=1))
         if not (folder / "background.png").is_file():
@@ -360,7 +403,7 @@ def main(argv=None):
     cfg = configs.get(args.preset, dict(configs.parse_override(s) for s in args.set))
     try:
         m = generate(cfg, args.out, force=args.force, workers=args.workers, progress=not args.quiet)
-    except FileExistsError as e:
+    except (FileExistsError, OSError) as e:
         sys.exit(f"error: {e}")
     gen = m["generation"]
     print(f"{args.out}: {len(m['splits'])} splits, {gen['samples']} presses "

@@ -58,6 +58,7 @@ def describe(val: dict | None) -> str:
 def main(argv=None) -> int:
     args = parse_args(argv)
     from ffjax import registry, train
+    from ffjax.train.checkpoint import CheckpointError, CheckpointWriteError
 
     cfg = args.cfg
     spec = registry.get(args.method)
@@ -118,10 +119,10 @@ def main(argv=None) -> int:
             max_steps=args.max_steps,
             progress=not args.quiet,
         )
-    except train.NonFiniteLossError as e:
+    except (train.NonFiniteLossError, CheckpointWriteError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
-    except FileExistsError as e:
+    except (FileExistsError, CheckpointError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     wall = time.perf_counter() - t0

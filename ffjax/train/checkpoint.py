@@ -7,12 +7,22 @@
     RUN/train_log.jsonl   one row per step (train) and per epoch (val); RUN/epochs.csv; RUN/summary.json
 
 Orbax saves asynchronously: every read waits for pending saves first.
+
+Kill safety: orbax writes each step into a temporary folder and renames it when complete, so a kill
+mid-save leaves the previous step as the newest one; our JSON files go through `atomic_write_text`
+(temp file, fsync, os.replace). A failed save (disk full, folder gone read-only) raises
+`CheckpointWriteError`; the older checkpoints are untouched because a new one is written beside them.
+A missing, partial or foreign checkpoint is refused with `CheckpointError` naming the path.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import errno
 import json
+import os
+import shutil
 from pathlib import Path
 
 import jax
@@ -20,6 +30,83 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 MODEL_JSON = "model.json"
+_MODEL_KEYS = ("method", "input_size", "stats", "cfg")
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be used: missing, partial, or written for another model / not by ffjax."""
+
+
+class CheckpointWriteError(OSError):
+    """A checkpoint or run file could not be written (disk full, no permission); older ones are intact."""
+
+
+def atomic_write_text(path, text: str) -> None:
+    """Write `path` so that a kill or a full disk leaves either the old file or the new one, never a part."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())  # the bytes are on disk before the rename makes them visible
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise CheckpointWriteError(e.errno, f"could not write {path}: {e.strerror or e}") from e
+    _fsync_dir(path.parent)
+
+
+def _fsync_dir(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)  # makes the rename itself durable
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def check_writable(folder, need_bytes: int = 0) -> Path:
+    """Fail fast, before any work, when `folder` cannot be created or written or has too little space."""
+    folder = Path(folder).absolute()
+    probe = folder / f".write_probe{os.getpid()}"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with open(probe, "wb") as f:
+            f.write(b"0" * 4096)
+            f.flush()
+            os.fsync(f.fileno())
+    except OSError as e:
+        raise CheckpointWriteError(e.errno, f"output folder {folder} is not writable: {e.strerror or e}") from e
+    finally:
+        with contextlib.suppress(OSError):  # e.g. the parent is a file: nothing was created
+            probe.unlink()
+    free = shutil.disk_usage(folder).free
+    if free < need_bytes:
+        raise CheckpointWriteError(
+            errno.ENOSPC,
+            f"output folder {folder} has {free / 2**20:.1f} MiB free; a checkpoint needs about "
+            f"{need_bytes / 2**20:.1f} MiB. Free some space or choose another --out",
+        )
+    return folder
+
+
+def _save_error(e: BaseException, what: str, good) -> CheckpointWriteError:
+    """A save failure as a CheckpointWriteError that says which checkpoint is still good."""
+    inner = e
+    for _ in range(20):  # follow the exception chain (orbax wraps) to the OSError, if any
+        if inner is None or isinstance(inner, OSError):
+            break
+        inner = inner.__cause__ or inner.__context__
+    code = inner.errno if isinstance(inner, OSError) else None
+    why = "the disk is full" if code == errno.ENOSPC else f"{type(e).__name__}: {e}"
+    keep = f"the last good checkpoint (step {good}) is untouched" if good is not None else "no checkpoint yet"
+    return CheckpointWriteError(code or errno.EIO, f"could not save {what}: {why}; {keep}. Free space / fix "
+                                f"permissions, then resume (--resume)")
 
 
 def _abstract(tree):
@@ -58,15 +145,25 @@ class Checkpointer:
     def __init__(self, run_dir, max_to_keep: int = 2):
         run_dir = Path(run_dir).absolute()  # orbax needs absolute paths
         self.run_dir = run_dir
-        opts = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True)
+        for sub in ("checkpoints", "best"):
+            _drop_interrupted_deletes(run_dir / sub)
+        # cleanup_tmp_directories: a save a kill interrupted is an unfinished `<step>.orbax-checkpoint-tmp*`
+        # folder; orbax never lists it as a step, and this removes it when the run is reopened.
+        opts = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True, cleanup_tmp_directories=True)
         self.latest = ocp.CheckpointManager(run_dir / "checkpoints", options=opts)
         self.best = ocp.CheckpointManager(
-            run_dir / "best", options=ocp.CheckpointManagerOptions(max_to_keep=1, create=True)
+            run_dir / "best",
+            options=ocp.CheckpointManagerOptions(max_to_keep=1, create=True, cleanup_tmp_directories=True),
         )
 
     def save_latest(self, step: int, state, data_state, meta: dict) -> None:
-        if self.latest.latest_step() == step:
-            return
+        # async: a failed write surfaces at the next save or wait, so name the folder, not this step
+        with self._saving(f"a checkpoint in {self.run_dir / 'checkpoints'} (at or before step {step})"):
+            if self.latest.latest_step() == step:
+                return
+            self._save_latest(step, state, data_state, meta)
+
+    def _save_latest(self, step: int, state, data_state, meta: dict) -> None:
         self.latest.save(
             step,
             args=ocp.args.Composite(
@@ -77,15 +174,41 @@ class Checkpointer:
         )
 
     def save_best(self, step: int, state, meta: dict) -> None:
-        self.best.wait_until_finished()
+        with self._saving(f"the best checkpoint in {self.run_dir / 'best'}"):
+            self.best.wait_until_finished()
+        if step in self.best.all_steps():
+            # A resumed run replays steps a killed one already finished: that best checkpoint is the same
+            # bytes (the replay is exact), and keeping it means there is never a moment without one.
+            return
         variables = {"params": state.params, "batch_stats": state.batch_stats}
-        self.best.save(
-            step,
-            args=ocp.args.Composite(
-                variables=ocp.args.StandardSave(variables), meta=ocp.args.JsonSave(_jsonable(meta))
-            ),
-            force=True,
-        )
+        with self._saving(f"best checkpoint step {step} in {self.run_dir / 'best'}"):
+            self.best.save(
+                step,
+                args=ocp.args.Composite(
+                    variables=ocp.args.StandardSave(variables), meta=ocp.args.JsonSave(_jsonable(meta))
+                ),
+                force=True,
+            )
+
+    def _saving(self, what: str):
+        """Context that turns any write failure (raised now or by the async writer) into CheckpointWriteError."""
+
+        @contextlib.contextmanager
+        def ctx():
+            try:
+                yield
+            except CheckpointWriteError:
+                raise
+            except Exception as e:  # orbax may wrap the OSError; _save_error digs it out
+                raise _save_error(e, what, self._good_step()) from e
+
+        return ctx()
+
+    def _good_step(self):
+        try:
+            return self.latest.latest_step()
+        except Exception:
+            return None
 
     def restore_latest(self, state):
         """(state, data_state, meta) from the newest checkpoint, placed like `state`; None if none."""
@@ -93,14 +216,18 @@ class Checkpointer:
         step = self.latest.latest_step()
         if step is None:
             return None
-        res = self.latest.restore(
-            step,
-            args=ocp.args.Composite(
-                state=ocp.args.StandardRestore(_abstract(state.arrays())),
-                data=ocp.args.JsonRestore(),
-                meta=ocp.args.JsonRestore(),
-            ),
-        )
+        path = self.run_dir / "checkpoints" / str(step)
+        try:
+            res = self.latest.restore(
+                step,
+                args=ocp.args.Composite(
+                    state=ocp.args.StandardRestore(_abstract(state.arrays())),
+                    data=ocp.args.JsonRestore(),
+                    meta=ocp.args.JsonRestore(),
+                ),
+            )
+        except Exception as e:
+            raise CheckpointError(f"cannot resume from {path}: {_why(e)}") from e
         return state.with_arrays(dict(res["state"])), _unjson(res["data"])["iterator"], _unjson(res["meta"])
 
     def latest_step(self) -> int | None:
@@ -108,12 +235,35 @@ class Checkpointer:
         return self.latest.latest_step()
 
     def wait(self) -> None:
-        self.latest.wait_until_finished()
-        self.best.wait_until_finished()
+        with self._saving(f"checkpoint in {self.run_dir}"):
+            self.latest.wait_until_finished()
+            self.best.wait_until_finished()
 
     def close(self) -> None:
-        self.latest.close()
-        self.best.close()
+        try:
+            self.latest.close()
+        finally:
+            self.best.close()
+
+
+def _drop_interrupted_deletes(folder: Path) -> None:
+    """Remove older step folders that a kill left half-deleted (orbax drops old steps after the new one is
+    complete, metadata file first). The newest step is never touched."""
+    if not folder.is_dir():
+        return
+    steps = sorted((int(p.name), p) for p in folder.iterdir() if p.name.isdigit() and p.is_dir())
+    for _, path in steps[:-1]:
+        if not (path / "_CHECKPOINT_METADATA").is_file():
+            shutil.rmtree(path, ignore_errors=True)
+
+
+def _why(e: BaseException) -> str:
+    """A restore failure in words: another architecture, or a checkpoint that is partial / not ffjax's."""
+    text = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+    low = str(e).lower()
+    if "shape" in low or "structure" in low or "mismatch" in low or "not found in" in low or "keys" in low:
+        return f"it was written for another model/optimizer (different parameter tree or shapes): {text[:300]}"
+    return f"it is partial, corrupt or not an ffjax checkpoint ({type(e).__name__}: {text[:300]})"
 
 
 def write_model_json(run_dir, cfg: dict, spec, stats, input_size: int, frame_size=None) -> dict:
@@ -130,18 +280,23 @@ def write_model_json(run_dir, cfg: dict, spec, stats, input_size: int, frame_siz
         "frame_size": None if frame_size is None else [int(v) for v in frame_size],
         "cfg": _jsonable(cfg),
     }
-    path = Path(run_dir) / MODEL_JSON
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(info, indent=2))
-    tmp.replace(path)
+    atomic_write_text(Path(run_dir) / MODEL_JSON, json.dumps(info, indent=2))
     return info
 
 
 def read_model_json(run_dir) -> dict:
+    """model.json of a run folder; refused (naming the path) when missing, partial or not ffjax's."""
     path = Path(run_dir) / MODEL_JSON
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found: not a training run folder (python -m ffjax.train ...)")
-    return json.loads(path.read_text())
+    try:
+        info = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise CheckpointError(f"{path} is not valid JSON (a partial copy, or not an ffjax run): {e}") from e
+    missing = [k for k in _MODEL_KEYS if not isinstance(info, dict) or k not in info]
+    if missing:
+        raise CheckpointError(f"{path} is not an ffjax model.json: missing {', '.join(missing)}")
+    return info
 
 
 def _retuple(saved, template):
@@ -170,18 +325,36 @@ def load_checkpoint(run_dir, which: str = "best"):
         cfg = _retuple(cfg, configs.get(cfg.get("preset", "smoke")))
     except ValueError:
         pass
-    spec = registry.get(info["method"])
-    stats = data.Stats.from_dict(info["stats"])
-    size = int(info["input_size"])
-    model = models.build(cfg["model"], spec, size)
+    try:
+        spec = registry.get(info["method"])
+        stats = data.Stats.from_dict(info["stats"])
+        size = int(info["input_size"])
+        model = models.build(cfg["model"], spec, size)
+    except (KeyError, TypeError, ValueError) as e:
+        raise CheckpointError(f"{run_dir / MODEL_JSON} describes a model this ffjax cannot build: {e}") from e
     dummy = jax.ShapeDtypeStruct((1, size, size, 3), np.float32)
     abstract = jax.eval_shape(lambda x: model.init(jax.random.PRNGKey(0), x, train=False), dummy)
     target = {"params": abstract["params"], "batch_stats": abstract.get("batch_stats", {})}
-    mgr = ocp.CheckpointManager(run_dir / ("best" if which == "best" else "checkpoints"))
+    folder = run_dir / ("best" if which == "best" else "checkpoints")
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder} not found: {run_dir} has no {which} checkpoint yet")
+    mgr = ocp.CheckpointManager(folder)
     try:
         step = mgr.latest_step()
         if step is None:
-            raise FileNotFoundError(f"{run_dir}: no {which} checkpoint yet")
+            raise FileNotFoundError(f"{folder}: no complete {which} checkpoint yet")
+        out = _restore_variables(mgr, step, which, target, folder / str(step))
+    finally:
+        mgr.close()
+    variables = {"params": out["params"]}
+    if out.get("batch_stats"):
+        variables["batch_stats"] = out["batch_stats"]
+    return cfg, spec, stats, variables
+
+
+def _restore_variables(mgr, step: int, which: str, target: dict, path: Path) -> dict:
+    """params/batch_stats of one step, checked against the model's shapes; CheckpointError otherwise."""
+    try:
         if which == "best":
             restored = mgr.restore(step, args=ocp.args.Composite(variables=ocp.args.StandardRestore(target)))
             out = restored["variables"]
@@ -193,15 +366,12 @@ def load_checkpoint(run_dir, which: str = "best"):
                 "params": restored["state"]["params"],
                 "batch_stats": restored["state"].get("batch_stats", {}),
             }
-            jax.tree.map(lambda a, b: _same_shape(a, b), target["params"], out["params"])
-    finally:
-        mgr.close()
-    variables = {"params": out["params"]}
-    if out.get("batch_stats"):
-        variables["batch_stats"] = out["batch_stats"]
-    return cfg, spec, stats, variables
+        jax.tree.map(lambda a, b: _same_shape(a, b), target["params"], out["params"])
+    except Exception as e:
+        raise CheckpointError(f"refusing {path}: {_why(e)}") from e
+    return out
 
 
 def _same_shape(a, b):
     if tuple(a.shape) != tuple(np.shape(b)):
-        raise ValueError(f"checkpoint tensor {np.shape(b)} does not match the model's {a.shape}")
+        raise ValueError(f"shape mismatch: checkpoint tensor {np.shape(b)} vs the model's {a.shape}")

@@ -2,7 +2,16 @@
 
 Resuming restores params, optimizer, step, rng key and the grain iterator position from the newest
 checkpoint and replays nothing else, so a killed-and-resumed run ends with the same numbers as an
-uninterrupted one. Losses are checked for finiteness before every checkpoint: a bad step is never saved.
+uninterrupted one (bitwise: same compiled step, same restored arrays, same data order). A SIGKILL at any
+point loses at most the steps since the last complete checkpoint: checkpoints are written beside the old
+ones and renamed when complete, and every JSON/CSV file is replaced atomically (a torn last log line is
+dropped on resume).
+
+Non-finite steps: the jitted step never applies an update whose loss or gradient norm is NaN/inf; the loop
+reads those metrics at its existing sync points (every log interval and before every checkpoint), so no
+checkpoint ever holds a bad step and the error names the exact step. train.nonfinite = "stop" (default)
+raises NonFiniteLossError naming the step and the batch's record indices; "skip" drops those updates,
+counts them and goes on.
 """
 
 from __future__ import annotations
@@ -20,7 +29,14 @@ import jax
 import numpy as np
 
 from ffjax import metrics as fmetrics
-from ffjax.train.checkpoint import Checkpointer, read_model_json, write_model_json
+from ffjax.train.checkpoint import (
+    Checkpointer,
+    CheckpointError,
+    atomic_write_text,
+    check_writable,
+    read_model_json,
+    write_model_json,
+)
 from ffjax.train.state import init_state
 from ffjax.train.step import eval_step, make_mesh, replicate, shard_batch, train_step
 
@@ -60,7 +76,19 @@ def with_output_affine(cfg: dict, stats) -> dict:
 
 
 class NonFiniteLossError(FloatingPointError):
-    """Raised when a training loss is NaN/inf; the run folder keeps its last good checkpoint."""
+    """Raised when a training loss or gradient is NaN/inf; the run folder keeps its last good checkpoint."""
+
+
+NONFINITE_MODES = ("stop", "skip")
+
+
+def batch_records(n: int, seed: int, batch_size: int, step: int) -> list[int]:
+    """Indices into the train split of the batch that step `step` (1-based) trained on: the shuffled,
+    repeated order make_dataset draws (one process), rebuilt only when an error needs to name it."""
+    import grain
+
+    ds = grain.MapDataset.range(n).shuffle(seed=seed).repeat(None).batch(batch_size, drop_remainder=True)
+    return [int(i) for i in ds[step - 1]]
 
 
 def open_sources(data_arg):
@@ -118,12 +146,12 @@ class _Log:
 
     def _truncate(self, step: int) -> None:
         if self.jsonl.exists():
-            rows = [r for r in self.jsonl.read_text().splitlines() if r and json.loads(r)["step"] <= step]
-            self.jsonl.write_text("".join(r + "\n" for r in rows))
+            rows = [r for r in self.jsonl.read_text().splitlines() if (_json_step(r) or step + 1) <= step]
+            atomic_write_text(self.jsonl, "".join(r + "\n" for r in rows))
         if self.csv.exists():
             with self.csv.open() as f:
-                rows = [r for r in csv.DictReader(f) if int(r["step"]) <= step]
-            self._write_csv(rows, "w")
+                rows = [r for r in csv.DictReader(f) if _complete(r) and (_int(r.get("step")) or step + 1) <= step]
+            atomic_write_text(self.csv, _csv_text(rows))
 
     def row(self, row: dict) -> None:
         with self.jsonl.open("a") as f:
@@ -133,12 +161,41 @@ class _Log:
         self._write_csv([row], "a")
 
     def _write_csv(self, rows, mode: str) -> None:
-        new = mode == "w" or not self.csv.exists()
-        with self.csv.open(mode, newline="") as f:
-            w = csv.DictWriter(f, fieldnames=CSV_FIELDS, extrasaction="ignore")
-            if new:
-                w.writeheader()
-            w.writerows(rows)
+        if mode == "w" or not self.csv.exists():
+            atomic_write_text(self.csv, _csv_text(rows))
+            return
+        with self.csv.open("a", newline="") as f:
+            csv.DictWriter(f, fieldnames=CSV_FIELDS, extrasaction="ignore").writerows(rows)
+
+
+def _csv_text(rows) -> str:
+    import io
+
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=CSV_FIELDS, extrasaction="ignore")
+    w.writeheader()
+    w.writerows(rows)
+    return buf.getvalue()
+
+
+def _json_step(line: str):
+    """A log line's step, or None for a line a kill cut short (dropped on resume)."""
+    try:
+        return int(json.loads(line)["step"])
+    except (ValueError, KeyError, TypeError):
+        return None
+
+
+def _complete(row: dict) -> bool:
+    """False for a CSV row a kill cut short (fields missing) or garbled (extra fields)."""
+    return None not in row and all(v is not None for v in row.values())
+
+
+def _int(text):
+    try:
+        return int(text)
+    except (TypeError, ValueError):
+        return None
 
 
 def train(
@@ -167,9 +224,11 @@ def train(
     from ffjax import registry
 
     spec = registry.get(spec) if isinstance(spec, str) else spec
-    run_dir = Path(out_dir).absolute()
-    run_dir.mkdir(parents=True, exist_ok=True)
+    run_dir = check_writable(out_dir)  # before any work: an unwritable --out fails in a second, not at step N
     tc = cfg["train"]
+    nonfinite = tc.get("nonfinite", "stop")
+    if nonfinite not in NONFINITE_MODES:
+        raise ValueError(f"train.nonfinite must be one of {NONFINITE_MODES}, got {nonfinite!r}")
     input_size, bs = int(cfg["data"]["input_size"]), int(tc["batch_size"])
     train_src, val_src = open_sources(data)
     ckpt = Checkpointer(run_dir)
@@ -180,9 +239,11 @@ def train(
     if resume and has_ckpt:
         info = read_model_json(run_dir)
         if info["method"] != spec.name:
-            raise ValueError(f"{run_dir} was trained with method {info['method']!r}, not {spec.name!r}")
+            ckpt.close()
+            raise CheckpointError(f"{run_dir} was trained with method {info['method']!r}, not {spec.name!r}")
         stats = fdata.Stats.from_dict(info["stats"])
-        changed = _diff(info["cfg"], json.loads(json.dumps(cfg)))
+        # compared after the output affine is filled in, as model.json records it
+        changed = _diff(info["cfg"], json.loads(json.dumps(with_output_affine(cfg, stats))))
         if changed:  # allowed (e.g. more epochs), but the result then differs from an uninterrupted run
             warnings.warn(f"resuming {run_dir} with a changed config: {', '.join(changed)}", stacklevel=2)
     else:
@@ -208,6 +269,8 @@ def train(
         variables=None if resume and has_ckpt else init_variables,
         total_steps=total,
     )
+    # a full disk fails here, before step 1: two latest checkpoints, the best one, and one being written
+    check_writable(run_dir, 4 * sum(int(np.asarray(x).nbytes) for x in jax.tree.leaves(state.arrays())))
     state = replicate(state, mesh)
     it = iter(fdata.make_dataset(train_src, stats, input_size, bs, seed=int(cfg["seed"]), shuffle=True))
     meta = {
@@ -219,9 +282,15 @@ def train(
         "best_epoch": None,
         "last_val": None,
         "elapsed_s": 0.0,
+        "nonfinite_steps": [],
     }
     if resume and has_ckpt:
-        state, data_state, meta = ckpt.restore_latest(state)
+        try:
+            state, data_state, meta = ckpt.restore_latest(state)
+        except CheckpointError:
+            ckpt.close()
+            raise
+        meta.setdefault("nonfinite_steps", [])
         state = replicate(state, mesh)
         it.set_state(data_state)
     start = int(jax.device_get(state.step))
@@ -235,22 +304,21 @@ def train(
         rows = jax.device_get(pending)
         pending.clear()
         for step, m in rows:
+            ok = math.isfinite(float(m["loss"])) and math.isfinite(float(m["grad_norm"]))
             row = {
                 "kind": "train",
                 "step": step,
                 "epoch": math.ceil(step / steps_per_epoch),
                 **{k: float(v) for k, v in m.items()},
             }
+            if not ok:
+                row["skipped"] = True
             log.row(row)
-            if not math.isfinite(row["loss"]):
-                good = ckpt.latest_step()
-                raise NonFiniteLossError(
-                    f"non-finite training loss ({row['loss']}) at step {step} "
-                    f"(epoch {row['epoch']}); stopped. "
-                    f"Last good checkpoint: step {good} in {run_dir / 'checkpoints'}"
-                    + (" (none yet)" if good is None else "")
-                    + ". Lower train.lr_* or set train.grad_clip, then resume or restart."
-                )
+            if not ok and nonfinite == "stop":
+                raise _nonfinite_error(row, step, ckpt, run_dir, len(train_src), int(cfg["seed"]), bs)
+            if not ok:  # "skip": the step dropped the update; keep the epoch means finite
+                meta["nonfinite_steps"].append(step)
+                continue
             meta["epoch_loss"] += row["loss"]
             meta["epoch_force_l1"] += row["force_l1"]
             meta["epoch_steps"] += 1
@@ -295,8 +363,10 @@ def train(
     finally:
         if bar is not None:
             bar.close()
-        ckpt.wait()
-        ckpt.close()
+        try:
+            ckpt.wait()  # a pending async save must finish (or report its error) before the run counts as done
+        finally:
+            ckpt.close()
 
     final_step = int(jax.device_get(state.step))
     elapsed = elapsed0 + time.perf_counter() - t0
@@ -317,9 +387,27 @@ def train(
         "val": meta["last_val"],
         "force_range": {"min": list(stats.force_min), "max": list(stats.force_max)},
     }
-    (run_dir / SUMMARY_NAME).write_text(json.dumps(summary, indent=2))
+    if meta["nonfinite_steps"]:
+        warnings.warn(f"{len(meta['nonfinite_steps'])} non-finite step(s) skipped (train.nonfinite='skip'): "
+                      f"steps {meta['nonfinite_steps'][:20]}", stacklevel=2)
+    summary["nonfinite_skipped"] = list(meta["nonfinite_steps"])
+    atomic_write_text(run_dir / SUMMARY_NAME, json.dumps(summary, indent=2))
     summary["state"] = state
     return summary
+
+
+def _nonfinite_error(row, step, ckpt, run_dir, n, seed, bs) -> NonFiniteLossError:
+    good = ckpt.latest_step()
+    what = "loss" if not math.isfinite(row["loss"]) else "gradient"
+    idx = batch_records(n, seed, bs, step)
+    return NonFiniteLossError(
+        f"non-finite training {what} (loss {row['loss']}, grad norm {row['grad_norm']}) at step {step} "
+        f"(epoch {row['epoch']}, batch {step - 1}: train records {idx}); stopped, the update was not applied. "
+        f"Last good checkpoint: step {good} in {run_dir / 'checkpoints'}"
+        + (" (none yet)" if good is None else "")
+        + ". Lower train.lr_* or set train.grad_clip, check those records, then resume or restart "
+        "(or set train.nonfinite=skip)."
+    )
 
 
 def _end_epoch(state, meta, step, epoch, val_src, stats, input_size, bs, mesh, ckpt, log, elapsed):

@@ -64,14 +64,20 @@ def _train_step(state: TrainState, batch: dict):
     (loss, (force_l1, depth_mse, new_stats)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
     updates, opt_state = state.tx.update(grads, state.opt_state, state.params)
     params = optax.apply_updates(state.params, updates)
-    metrics = {
-        "loss": loss,
-        "force_l1": force_l1,
-        "depth_mse": depth_mse,
-        "grad_norm": optax.tree.norm(grads),
-    }
-    new_state = state.replace(step=state.step + 1, params=params, batch_stats=new_stats, opt_state=opt_state)
+    grad_norm = optax.tree.norm(grads)
+    finite = jnp.isfinite(loss) & jnp.isfinite(grad_norm)
+    # A non-finite step never reaches the state (as optax.apply_if_finite): params, optimizer and batch
+    # stats stay as they were, only the step (and with it the dropout key) moves on. The loop reads
+    # loss and grad_norm with the other metrics, at its existing sync points, and stops or goes on
+    # (train.nonfinite): no extra output, no extra host sync.
+    kept = _select(finite, (params, opt_state, new_stats), (state.params, state.opt_state, state.batch_stats))
+    metrics = {"loss": loss, "force_l1": force_l1, "depth_mse": depth_mse, "grad_norm": grad_norm}
+    new_state = state.replace(step=state.step + 1, params=kept[0], opt_state=kept[1], batch_stats=kept[2])
     return new_state, metrics
+
+
+def _select(ok, new, old):
+    return jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, old)
 
 
 def _eval_step(state: TrainState, batch: dict):
@@ -83,6 +89,7 @@ def _eval_step(state: TrainState, batch: dict):
 
 
 # train_step(state, batch) -> (state, {loss, force_l1, depth_mse, grad_norm}); the input state is donated.
+# When loss or grad_norm is NaN/inf that step's update is dropped (the step counter still moves on).
 train_step = jax.jit(_train_step, donate_argnums=0)
 # eval_step(state, batch) -> {loss, force_l1, depth_mse, force (B,3)}; an optional batch["mask"] (B,)
 # weights rows, so a padded last batch averages over its real rows only.

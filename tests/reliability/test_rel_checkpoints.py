@@ -1,0 +1,153 @@
+"""Checkpoint refusal: a missing, partial or foreign checkpoint (another method or architecture, or not an
+ffjax run at all) and torch files that would need unrestricted unpickling are refused with a message that
+names the path and what is wrong."""
+
+import json
+import pickle
+import shutil
+import zipfile
+
+import numpy as np
+import pytest
+
+import configs
+from ffjax import convert, train
+from ffjax.convert import reader
+from ffjax.data.sources import write_rgb
+from ffjax.train.checkpoint import CheckpointError
+
+METHOD = "dino_rd"
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """One finished smoke run (1 epoch of 4 steps on a random split)."""
+    root = tmp_path_factory.mktemp("ck_data")
+    rng = np.random.default_rng(0)
+    h, w = configs.get("smoke")["data"]["render_size"]
+    for split, n in (("train", 32), ("val", 8)):
+        (root / split).mkdir()
+        force = rng.uniform(0, 5, (n, 3)).astype(np.float32)
+        image = rng.integers(0, 255, (n, h, w, 3), dtype=np.uint8)
+        np.savez(root / split / "shard_00000.npz", image=image, depth=rng.random((n, h, w), np.float32),
+                 force=force, shape=np.array(["blob"] * n))
+        write_rgb(root / split / "background.png", np.full((h, w, 3), 120, np.uint8))
+    out = tmp_path_factory.mktemp("ck_run")
+    train.train(configs.get("smoke"), METHOD, root, out, progress=False)
+    return {"dir": out, "data": root}
+
+
+def _copy(run, tmp_path):
+    dst = tmp_path / "copy"
+    shutil.copytree(run["dir"], dst)
+    return dst
+
+
+def test_missing_checkpoint_is_refused(run, tmp_path):
+    with pytest.raises(FileNotFoundError, match=str(tmp_path / "model.json")):
+        train.load_checkpoint(tmp_path)
+    dst = _copy(run, tmp_path)
+    shutil.rmtree(dst / "best")
+    with pytest.raises(FileNotFoundError, match=rf"{dst / 'best'}.* no best checkpoint"):
+        train.load_checkpoint(dst, "best")
+
+
+def test_partial_checkpoint_is_refused(run, tmp_path):
+    dst = _copy(run, tmp_path)
+    step = max(int(p.name) for p in (dst / "checkpoints").iterdir() if p.name.isdigit())
+    state = dst / "checkpoints" / str(step) / "state"
+    for p in state.rglob("*"):  # an interrupted copy: the array data is gone
+        if p.is_file() and ("ocdbt" in str(p) or p.parent.name == "d"):
+            p.unlink()
+    with pytest.raises(CheckpointError, match=rf"{dst / 'checkpoints' / str(step)}.*partial|another"):
+        train.load_checkpoint(dst, "latest")
+
+
+def test_other_architecture_is_refused(run, tmp_path):
+    dst = _copy(run, tmp_path)
+    info = json.loads((dst / "model.json").read_text())
+    info["cfg"]["model"]["vit"]["dim"] = 48  # model.json now describes a wider model than the weights
+    (dst / "model.json").write_text(json.dumps(info))
+    with pytest.raises(CheckpointError, match=rf"{dst / 'best'}.*another model"):
+        train.load_checkpoint(dst, "best")
+    with pytest.raises(CheckpointError, match=rf"{dst / 'checkpoints'}.*another model"):
+        train.load_checkpoint(dst, "latest")
+
+
+def test_resume_with_another_method_or_architecture_is_refused(run, tmp_path):
+    dst = _copy(run, tmp_path)
+    with pytest.raises(CheckpointError, match=rf"{dst}.* method 'dino_rd', not 'dino_r'"):
+        train.train(configs.get("smoke", {"train.epochs": 2}), "dino_r", run["data"], dst, resume=True,
+                    progress=False)
+    wider = configs.get("smoke", {"train.epochs": 2, "model.vit.dim": 48})
+    with pytest.warns(UserWarning, match="changed config"):
+        with pytest.raises(CheckpointError, match=rf"cannot resume from {dst / 'checkpoints'}.*another model"):
+            train.train(wider, METHOD, run["data"], dst, resume=True, progress=False)
+
+
+@pytest.mark.parametrize("text", ["{not json", json.dumps({"hello": 1}), json.dumps([1, 2])])
+def test_foreign_model_json_is_refused(run, tmp_path, text):
+    dst = _copy(run, tmp_path)
+    (dst / "model.json").write_text(text)
+    with pytest.raises(CheckpointError, match=rf"{dst / 'model.json'}"):
+        train.load_checkpoint(dst)
+
+
+def test_unknown_method_is_refused(run, tmp_path):
+    dst = _copy(run, tmp_path)
+    info = json.loads((dst / "model.json").read_text())
+    info["method"] = "someone_elses_net"
+    (dst / "model.json").write_text(json.dumps(info))
+    with pytest.raises(CheckpointError, match=rf"{dst / 'model.json'}.*cannot build"):
+        train.load_checkpoint(dst)
+
+
+def _torch_zip(path, pkl: bytes, storages: dict | None = None):
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("archive/data.pkl", pkl)
+        zf.writestr("archive/byteorder", "little")
+        for k, v in (storages or {}).items():
+            zf.writestr(f"archive/data/{k}", v)
+
+
+class _Evil:
+    def __reduce__(self):
+        return (eval, ("1 + 1",))
+
+
+def test_torch_file_needing_unrestricted_unpickling_is_refused(tmp_path):
+    evil = tmp_path / "evil.pt"
+    _torch_zip(evil, pickle.dumps({"w": _Evil()}, protocol=2))
+    with pytest.raises(convert.UnsafePickleError, match=r"evil\.pt.*(__builtin__|builtins)\.eval.*weights_only"):
+        reader.load(evil)
+    legacy = tmp_path / "legacy.pth"  # torch < 1.6 format: a bare pickle stream
+    legacy.write_bytes(pickle.dumps({"w": _Evil()}))
+    with pytest.raises(ValueError, match=r"legacy\.pth.*unrestricted unpickling"):
+        reader.load(legacy)
+
+
+def test_partial_torch_and_safetensors_files_are_refused(tmp_path):
+    cut = tmp_path / "cut.pth"
+    _torch_zip(cut, pickle.dumps({}, protocol=2))
+    cut.write_bytes(cut.read_bytes()[:30])  # a download cut short
+    with pytest.raises(ValueError, match=r"cut\.pth.*truncated or corrupt"):
+        reader.load(cut)
+    from safetensors.numpy import save_file
+
+    st = tmp_path / "w.safetensors"
+    save_file({"a": np.ones((64, 64), np.float32)}, str(st))
+    st.write_bytes(st.read_bytes()[:100])
+    with pytest.raises(ValueError, match=r"w\.safetensors.*partial or corrupt"):
+        reader.load(st)
+
+
+def test_torch_file_missing_a_storage_is_refused(tmp_path):
+    """A zip whose pickle names a tensor storage that is not in the archive (a partial re-pack)."""
+    # protocol 2, by hand: OrderedDict w -> _rebuild_tensor_v2(<persistent storage "0">, 0, (4,), (1,), False)
+    pkl = (b"\x80\x02ccollections\nOrderedDict\n)RX\x01\x00\x00\x00wctorch._utils\n_rebuild_tensor_v2\n(("
+           b"X\x07\x00\x00\x00storagectorch\nFloatStorage\nX\x01\x00\x00\x000X\x03\x00\x00\x00cpuK\x04tQ"
+           b"K\x00K\x04\x85K\x01\x85\x89tRs.")
+    path = tmp_path / "partial.pth"
+    _torch_zip(path, pkl)
+    with pytest.raises(ValueError, match=r"partial\.pth.*data/0 is missing"):
+        reader.read_state_dict(path)

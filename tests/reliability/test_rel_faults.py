@@ -1,0 +1,284 @@
+"""Faults: SIGKILL + resume loses nothing (training, dataset generation), a full or unwritable output
+folder fails with a message and keeps the last good checkpoint, a non-finite step stops (naming the step
+and batch) or is skipped."""
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+import configs
+from ffjax import train
+from ffjax.data.sources import write_rgb
+from ffjax.train import checkpoint as ckpt_lib
+from ffjax.train import loop as loop_lib
+
+METHOD = "dino_rd"  # the smoke model test_train / test_resume compile too
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def write_split(path, n, seed):
+    """A shard-layout split: random forces, a blob image whose size and place follow the force."""
+    rng = np.random.default_rng(seed)
+    path.mkdir(parents=True)
+    h, w = configs.get("smoke")["data"]["render_size"]
+    force = np.stack([rng.uniform(-2, 2, n), rng.uniform(-2, 2, n), rng.uniform(0, 15, n)], 1).astype(np.float32)
+    yy, xx = np.mgrid[:h, :w]
+    depth = np.stack([np.exp(-((yy - h / 2 - f[1]) ** 2 + (xx - w / 2 - f[0]) ** 2) / (2 + f[2])) for f in force])
+    depth = (depth * force[:, 2, None, None] / 10).astype(np.float32)
+    image = np.clip(120 + 80 * depth[..., None], 0, 255).astype(np.uint8).repeat(3, -1)
+    np.savez(path / "shard_00000.npz", image=image, depth=depth, force=force, shape=np.array(["blob"] * n))
+    write_rgb(path / "background.png", np.full((h, w, 3), 120, np.uint8))
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("rel_data")
+    write_split(root / "train", 32, 0)
+    write_split(root / "val", 8, 1)
+    return root
+
+
+def _cfg(**kw):
+    # 4 steps an epoch; checkpoints every 3 steps and at epoch ends
+    return configs.get("smoke", {"train.epochs": 3, "train.ckpt_every": 3, **kw})
+
+
+def _leaves(tree):
+    return [np.asarray(x) for x in jax.tree.leaves(jax.device_get(tree))]
+
+
+def _same(a, b):
+    la, lb = _leaves(a), _leaves(b)
+    return len(la) == len(lb) and all(np.array_equal(x, y) for x, y in zip(la, lb))
+
+
+@pytest.fixture(scope="module")
+def reference(data, tmp_path_factory):
+    return train.train(_cfg(), METHOD, data, tmp_path_factory.mktemp("rel_ref"), progress=False)
+
+
+def _env(tmp):
+    env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=str(tmp / "xla_cache"),
+               JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0", JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
+    return env
+
+
+def _kill_when(cmd, env, ready, timeout=240.0) -> bool:
+    """Run cmd; SIGKILL it as soon as ready() holds. True when it was killed while still running."""
+    p = subprocess.Popen(cmd, env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    t0 = time.monotonic()
+    while p.poll() is None and time.monotonic() - t0 < timeout:
+        if ready():
+            p.send_signal(signal.SIGKILL)
+            p.wait()
+            return True
+        time.sleep(0.005)
+    p.wait()
+    return False
+
+
+def _ckpt_steps(run: Path) -> list[int]:
+    folder = run / "checkpoints"
+    return sorted(int(p.name) for p in folder.iterdir() if p.name.isdigit()) if folder.is_dir() else []
+
+
+def test_sigkill_twice_then_resume_equals_uninterrupted(data, reference, tmp_path):
+    """Two SIGKILLs mid-training (each right after a new checkpoint appears), then a resume to the end: params,
+    best checkpoint, validation metrics and every logged loss are bitwise those of an uninterrupted run."""
+    run = tmp_path / "run"
+    cmd = [sys.executable, "-m", "ffjax.train", "--preset", "smoke", "--method", METHOD, "--data", str(data),
+           "--out", str(run), "--resume", "--quiet", "--set", "train.epochs=3", "--set", "train.ckpt_every=3"]
+    env = _env(tmp_path)
+    seen = []
+    for _ in range(2):
+        before = _ckpt_steps(run)[-1:] or [0]
+        _kill_when(cmd, env, lambda b=before[0]: any(s > b for s in _ckpt_steps(run)))
+        seen.append(_ckpt_steps(run))
+        # after every kill the newest checkpoint loads (a kill never leaves a broken one)
+        train.load_checkpoint(run, which="latest")
+    assert subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True).returncode == 0, seen
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["steps"] == 12 and summary["val"] == json.loads(json.dumps(reference["val"]))
+    assert _same(train.load_checkpoint(run, "latest")[3], {"params": reference["state"].params})
+    ref_best = train.load_checkpoint(reference["run_dir"], "best")[3]
+    assert _same(train.load_checkpoint(run, "best")[3], ref_best)
+
+    def rows(folder):
+        return [(r["kind"], r["step"], r.get("loss")) for r in map(json.loads, open(Path(folder) / "train_log.jsonl"))]
+
+    assert rows(run) == rows(reference["run_dir"])
+
+
+def test_torn_log_line_is_dropped_on_resume(data, reference, tmp_path):
+    train.train(_cfg(), METHOD, data, tmp_path, progress=False, max_steps=6)
+    with open(tmp_path / "train_log.jsonl", "a") as f:
+        f.write('{"kind": "train", "step": 7, "lo')  # what a kill mid-write leaves
+    done = train.train(_cfg(), METHOD, data, tmp_path, resume=True, progress=False)
+    assert _same(done["state"].params, reference["state"].params)
+    steps = [json.loads(r)["step"] for r in open(tmp_path / "train_log.jsonl") if '"train"' in r]
+    assert steps == list(range(1, 13))
+
+
+def test_sigkill_dataset_generation_keeps_finished_shards(tmp_path):
+    from ffjax.sim import dataset
+
+    sets = ["data.shard_size=16", "data.sensor_test_per_indenter=1", "data.calib_samples=4"]
+    cfg = configs.get("smoke", dict(configs.parse_override(s) for s in sets))
+    ref = tmp_path / "ref"
+    dataset.generate(cfg, ref, progress=False)
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "ffjax.sim.dataset", "--preset", "smoke", "--out", str(out), "--quiet",
+           "--workers", "1"] + [a for s in sets for a in ("--set", s)]
+    shards = lambda: sorted(out.rglob("shard_*.npz"))  # noqa: E731
+    _kill_when(cmd, _env(tmp_path), lambda: len(shards()) >= 3)
+    kept = {p: p.stat().st_ino for p in shards()}
+    assert kept and not (out / "manifest.json").exists()
+    (out / "train" / ".shard_00007.npz.tmp123").write_bytes(b"PK\x03\x04 partial")  # a torn shard
+    m = dataset.generate(cfg, out, progress=False)
+    assert m["generation"]["rendered"] < m["generation"]["samples"]  # only the missing shards were rendered
+    assert all(p.stat().st_ino == ino for p, ino in kept.items())  # finished shards were not redone
+    assert not list(out.rglob(".*.tmp*"))
+    for p in ref.rglob("shard_*.npz"):
+        assert p.read_bytes() == (out / p.relative_to(ref)).read_bytes(), p
+
+
+def test_corrupt_shard_is_redone(tmp_path):
+    from ffjax.sim import dataset
+
+    cfg = configs.get("smoke", {"data.sensor_test_per_indenter": 1, "data.calib_samples": 4})
+    dataset.generate(cfg, tmp_path, progress=False)
+    shard = tmp_path / "val" / "shard_00000.npz"
+    good = shard.read_bytes()
+    shard.write_bytes(good[: len(good) // 2])  # e.g. a copy cut short
+    m = dataset.generate(cfg, tmp_path, progress=False)
+    assert m["generation"]["rendered"] == 40 and shard.read_bytes() == good
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root ignores directory permissions")
+def test_unwritable_output_fails_before_any_work(data, tmp_path):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        with pytest.raises(ckpt_lib.CheckpointWriteError, match=r"locked.* not writable"):
+            train.train(_cfg(), METHOD, data, locked / "run", progress=False)
+        from ffjax.sim import dataset
+
+        with pytest.raises(OSError, match="not writable"):
+            dataset.generate(configs.get("smoke"), locked / "data", progress=False)
+    finally:
+        locked.chmod(0o700)
+
+
+def test_output_under_a_file_fails_before_any_work(data, tmp_path):
+    """Works as root too (chmod does not bite there): the output's parent is a file, so mkdir fails."""
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ckpt_lib.CheckpointWriteError, match=r"file/run is not writable"):
+        train.train(_cfg(), METHOD, data, tmp_path / "file" / "run", progress=False)
+    from ffjax.sim import dataset
+
+    with pytest.raises(OSError, match=r"file/data is not writable"):
+        dataset.generate(configs.get("smoke"), tmp_path / "file" / "data", progress=False)
+
+
+def test_no_space_for_a_checkpoint_fails_fast(data, tmp_path, monkeypatch):
+    monkeypatch.setattr(ckpt_lib.shutil, "disk_usage", lambda p: type("U", (), {"free": 1024})())
+    with pytest.raises(ckpt_lib.CheckpointWriteError, match=r"1\.0 KiB|0\.0 MiB free"):
+        train.train(_cfg(), METHOD, data, tmp_path, progress=False)
+    assert not (tmp_path / "train_log.jsonl").exists()
+
+
+def test_disk_full_mid_save_keeps_last_good_checkpoint(data, reference, tmp_path, monkeypatch):
+    """The writer raises ENOSPC while checkpoint 8 is being written: a clear error, checkpoint 6 intact,
+    and resuming (space freed) ends bitwise equal to the uninterrupted run."""
+    from orbax.checkpoint._src.handlers import json_checkpoint_handler as jch
+
+    real = jch.JsonCheckpointHandler._save_fn
+
+    async def full_disk(self, x, directory):
+        if "checkpoints/8." in str(directory):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return await real(self, x, directory)
+
+    monkeypatch.setattr(jch.JsonCheckpointHandler, "_save_fn", full_disk)
+    with pytest.raises(ckpt_lib.CheckpointWriteError, match=r"disk is full.*last good checkpoint \(step 6\)"):
+        train.train(_cfg(), METHOD, data, tmp_path, progress=False)
+    monkeypatch.setattr(jch.JsonCheckpointHandler, "_save_fn", real)
+    assert _ckpt_steps(tmp_path)[-1] == 6
+    train.load_checkpoint(tmp_path, which="latest")
+    done = train.train(_cfg(), METHOD, data, tmp_path, resume=True, progress=False)
+    assert _same(done["state"].arrays(), reference["state"].arrays())
+
+
+def _nan_at(step, seen):
+    """train_step that feeds a NaN image batch at `step` (1-based) and records the batch it saw."""
+    real = loop_lib.train_step
+
+    def step_fn(state, batch):
+        if int(state.step) + 1 == step:
+            seen.append(np.asarray(batch["force"]))
+            batch = {**batch, "image": np.full_like(batch["image"], np.nan)}
+        return real(state, batch)
+
+    return step_fn
+
+
+def test_nonfinite_stops_naming_step_and_batch(data, tmp_path, monkeypatch):
+    seen = []
+    monkeypatch.setattr(loop_lib, "train_step", _nan_at(7, seen))
+    with pytest.raises(train.NonFiniteLossError, match=r"at step 7 .*train records \[.*Last good checkpoint: step 6"):
+        train.train(_cfg(), METHOD, data, tmp_path, progress=False)
+    # the records the message names are the batch that step trained on
+    from ffjax import data as fdata
+
+    src = fdata.open_split(data / "train")
+    idx = loop_lib.batch_records(len(src), 0, 8, 7)
+    np.testing.assert_allclose(np.stack([src[i]["force"] for i in idx]), seen[0])
+    _, _, _, v = train.load_checkpoint(tmp_path, which="latest")
+    assert all(np.isfinite(x).all() for x in _leaves(v))
+
+
+def test_nonfinite_skip_drops_the_update_and_goes_on(data, reference, tmp_path, monkeypatch):
+    monkeypatch.setattr(loop_lib, "train_step", _nan_at(7, []))
+    with pytest.warns(UserWarning, match="1 non-finite step"):
+        out = train.train(_cfg(**{"train.nonfinite": "skip"}), METHOD, data, tmp_path, progress=False)
+    assert out["complete"] and out["nonfinite_skipped"] == [7]
+    assert all(np.isfinite(x).all() for x in _leaves(out["state"].params))
+    assert np.isfinite(out["val"]["nl1"])
+    bad = _cfg()
+    bad["train"]["nonfinite"] = "ignore"
+    with pytest.raises(ValueError, match="train.nonfinite"):
+        train.train(bad, METHOD, data, tmp_path / "x", progress=False)
+
+
+def test_step_drops_a_nonfinite_update_without_recompiling(data, reference):
+    from ffjax.train import step as step_lib
+
+    state = jax.tree.map(lambda x: jax.numpy.array(x, copy=True), reference["state"])  # train_step donates it
+    step0 = int(state.step)
+    batch = {"image": np.full((8, 32, 32, 3), np.nan, np.float32), "depth": np.zeros((8, 32, 32), np.float32),
+             "force": np.zeros((8, 3), np.float32)}
+    before = _leaves(state.params)
+    n = step_lib.train_step._cache_size()
+    new, m = step_lib.train_step(state, batch)
+    assert not np.isfinite(float(m["loss"])) and int(new.step) == step0 + 1
+    assert all(np.array_equal(a, b) for a, b in zip(_leaves(new.params), before))
+    assert n == 0 or step_lib.train_step._cache_size() == n  # the select is inside the one compiled step
+
+
+def test_faults_harness_reads_progress_past_a_torn_line(tmp_path):
+    from experiments import faults
+
+    assert faults._logged_step(tmp_path) == 0
+    (tmp_path / "train_log.jsonl").write_text('{"kind": "train", "step": 5}\n{"kind": "train", "st')
+    assert faults._logged_step(tmp_path) == 5
