@@ -95,10 +95,7 @@ MISMATCH_MEDIAN = 12.0  # median |frame - background| above this: the background
 BG_MEAN_TOL, BG_STD_RATIO = 15.0, 2.0  # background vs the recorded one: per-channel mean / std ratio tolerance
 
 
-def background_stats(background) -> dict:
-    """Per-channel mean and std (grey levels, RGB) of a uint8 (H, W, 3) background, as model.json records it."""
-    x = np.asarray(background, np.float64).reshape(-1, 3)
-    return {"mean": x.mean(0).round(2).tolist(), "std": x.std(0).round(2).tolist(), "channels": CHANNELS}
+background_stats = fdata.stats.background_stats  # shared with training, which records it in model.json
 
 
 def _level_issue(x: np.ndarray) -> str:

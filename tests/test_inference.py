@@ -1,6 +1,7 @@
 """The Predictor: training's preprocessing, shapes, one compile per batch shape, clear refusals, the
 out-of-range flag, depth in mm, and the three kinds of folder it loads (run, bundle, converted release)."""
 
+import json
 import warnings
 from pathlib import Path
 
@@ -150,3 +151,17 @@ def test_converted_release_folder(tmp_path):
 def test_not_a_checkpoint(tmp_path):
     with pytest.raises(FileNotFoundError, match="not a checkpoint folder"):
         inference.load(tmp_path)
+
+
+def test_training_run_records_its_background_and_warns_on_another_sensors(run_dir, batch):
+    from ffjax import sim
+
+    info = json.loads((run_dir / "model.json").read_text())
+    assert info["background_stats"] == inference.background_stats(batch["background"])
+    model = inference.load(run_dir)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", inference.BackgroundWarning)
+        model.set_background(batch["background"])  # the training sensor's own background: no warning
+    digit = sim.sensors.get_sensor("digit").background(_smoke_run.frame_size())
+    with pytest.warns(inference.BackgroundWarning):
+        model.set_background(digit)

@@ -84,3 +84,9 @@ def source_background(source):
 
 def _stack(records: list[dict]) -> dict:
     return {k: np.stack([r[k] for r in records]) for k in ("image", "background", "depth", "force")}
+
+
+def background_stats(background) -> dict:
+    """Per-channel mean and std (grey levels, RGB) of a uint8 (H, W, 3) background, as model.json records it."""
+    x = np.asarray(background, np.float64).reshape(-1, 3)
+    return {"mean": x.mean(0).round(2).tolist(), "std": x.std(0).round(2).tolist(), "channels": "RGB"}

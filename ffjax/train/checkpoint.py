@@ -266,10 +266,13 @@ def _why(e: BaseException) -> str:
     return f"it is partial, corrupt or not an ffjax checkpoint ({type(e).__name__}: {text[:300]})"
 
 
-def write_model_json(run_dir, cfg: dict, spec, stats, input_size: int, frame_size=None) -> dict:
+def write_model_json(run_dir, cfg: dict, spec, stats, input_size: int, frame_size=None,
+                     background_stats: dict | None = None) -> dict:
     """Write run_dir/model.json: all a predictor needs to rebuild the model and its preprocessing.
 
     frame_size: (H, W) of the training camera frames, so a predictor can refuse frames of another size.
+    background_stats: the training background's per-channel statistics, so a predictor can warn when it is
+    handed a background from another sensor.
     """
     info = {
         "method": spec.name,
@@ -278,6 +281,7 @@ def write_model_json(run_dir, cfg: dict, spec, stats, input_size: int, frame_siz
         "stats": stats.to_dict(),
         "force_range": {"min": list(stats.force_min), "max": list(stats.force_max)},
         "frame_size": None if frame_size is None else [int(v) for v in frame_size],
+        **({"background_stats": background_stats} if background_stats else {}),
         "cfg": _jsonable(cfg),
     }
     atomic_write_text(Path(run_dir) / MODEL_JSON, json.dumps(info, indent=2))

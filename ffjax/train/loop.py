@@ -249,7 +249,9 @@ def train(
     else:
         stats = fdata.Stats.compute(train_src, cfg["data"])
     cfg = with_output_affine(cfg, stats)
-    write_model_json(run_dir, cfg, spec, stats, input_size, frame_size=train_src[0]["image"].shape[:2])
+    first = train_src[0]
+    write_model_json(run_dir, cfg, spec, stats, input_size, frame_size=first["image"].shape[:2],
+                     background_stats=fdata.stats.background_stats(first["background"]))
 
     steps_per_epoch = len(train_src) // bs
     if steps_per_epoch == 0:
