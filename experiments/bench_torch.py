@@ -209,7 +209,7 @@ class ForceModel(nn.Module):
             grid = s // arch["vit"]["patch"]
         else:
             self.backbone = ResNet(**arch["resnet"])
-            grid = math.ceil(s / 32)
+            grid = math.ceil(s / (8 if arch["resnet"].get("stem") == "small" else 32))  # the backbone's stride
         dim = self.backbone.dim
         self.regressor = Regressor(dim, arch["regressor"])
         dec = arch.get("decoder")

@@ -12,7 +12,8 @@ from experiments import bench, bench_jax, bench_report
 
 TINY = {
     "name": "test",
-    "cases": {"quick_vit": {"preset": "smoke", "method": "dino_rd", "size": 32, "batch": 4, "infer": (1,)}},
+    "cases": {"quick_vit": {"preset": "smoke", "method": "dino_rd", "size": 32, "batch": 4, "infer": (1,)},
+              "resnet": {"preset": "smoke", "method": "resnet_rd", "size": 32, "batch": 4, "infer": (1,)}},
     "vit_b14": None, "timing": (0, 1, 1), "infer_timing": (0, 1, 1), "peak_n": 128,
     "sim": {"n": {"64x64": 10}, "sizes": {"64x64": (24, 32)}}, "data": {"per_shape": 1, "batches": 2},
     "workers": (0,), "scaling": None, "dp": None, "bf16_acc": None, "profile": False,
@@ -104,6 +105,7 @@ def test_report_tolerates_missing_sections(results):
                     reason="set FFJAX_TORCH_PYTHON to a python with torch to test the PyTorch side")
 def test_torch_side_same_params(results):
     _, res = results
-    t = res["models"]["quick_vit"]["train"]
-    assert t["torch"]["params"] == t["ffjax"]["params"]
+    for case in res["models"]:  # same architecture on both sides, ViT and ResNet (stem, decoder grid) alike
+        t = res["models"][case]["train"]
+        assert t["torch"]["params"] == t["ffjax"]["params"], case
     assert res["ratios"]["train_quick_vit_ffjax_over_torch"] > 0
