@@ -336,6 +336,12 @@ def breaks_first(entry: dict) -> str | None:
     return max(rises, key=rises.get) if rises else None
 
 
+def lowest_at(entry: dict, li: int) -> str | None:
+    """The method with the lowest error at level index li (None if no method has a finite error there)."""
+    errs = {m: v["nl1"][li] for m, v in entry["methods"].items() if np.isfinite(v["nl1"][li])}
+    return min(errs, key=errs.get) if errs else None
+
+
 def _name(m: str) -> str:
     return registry.get(m).paper_name if m in registry.names() else m
 
@@ -350,8 +356,10 @@ MECHANISM = {
     "edge": "part of the imprint leaves the field of view or lands where LED falloff and vignetting differ, and "
             "the training poses kept footprints on the pad",
     "force": "outside the training range the regressor has to extrapolate",
-    "shear_angle": "the LEDs differ in colour and intensity per side, so shear in some directions changes the "
-                   "image less than in others",
+    "shear_angle": "a model that reads no shear at all scores |F_t| (|cos a| + |sin a|) on the two shear axes, "
+                   "1.37x more at 60/120/240/300 deg than at 0/180 deg, so a curve with that shape is the metric's "
+                   "geometry, not a direction the sensor sees worse (the per-axis bias_n in results.json tells which "
+                   "axis a method reads); the LEDs' per-side colour and intensity can add a real asymmetry on top",
     "drift": "a background from another sensor state leaves a uniform offset over the whole difference image, "
              "a pattern no training image had",
 }
@@ -378,6 +386,11 @@ def summary(results: dict) -> str:
         line = f"- **{fn}** ({e['label']}; nominal {ref:g}): " + "; ".join(parts) + "."
         if first and len(e["methods"]) > 1:
             line += f" Breaks first: **{_name(first)}** ({_traits(first)})."
+            best = lowest_at(e, len(e["levels"]) - 1)
+            if best:
+                line += (f" Lowest error at the strongest level: {_name(best)} (\"breaks first\" is relative to each "
+                         f"method's own nominal error, so a method that starts low can break first and still be best)."
+                         if best == first else f" Lowest error at the strongest level: {_name(best)}.")
         if fn == "force":
             bias = [v["bias_n"][-1][2] for v in e["methods"].values() if v["bias_n"][-1]]
             if bias:
@@ -395,6 +408,12 @@ def summary(results: dict) -> str:
                      f"factors ({', '.join(f'{_name(m)} {c}' for m, c in counts.items())}). "
                      f"One seed's curves move by about the seeds' spread below; a difference in 'doubles at' "
                      f"between adjacent levels is not a resolved ranking.")
+        bests = [lowest_at(e, len(e["levels"]) - 1) for e in results["factors"].values()]
+        bests = [m for m in bests if m]
+        if bests:
+            bc = {m: bests.count(m) for m in dict.fromkeys(bests)}
+            lines[-1] += (" Lowest error at each factor's strongest level: "
+                          + ", ".join(f"{_name(m)} on {c}" for m, c in bc.items()) + f" of {len(bests)}.")
     return "\n".join(lines)
 
 

@@ -302,8 +302,13 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
         ax.plot(tr["t"], tr["true"], "k-", lw=1.2, label="true push force")
         ax.plot(tr["t"], tr["reference"], "C1-", lw=0.8, label="reference sensor (drifting)")
         ax.plot(tr["t"], tr["estimate"], "C0.-", lw=0.8, ms=3, label=f"estimate ({tr['method']})")
+        t_end, window = float(np.asarray(tr["t"])[-1]), float(res["pushing"]["duration_s"])
+        if window < t_end:  # the sweep's longest push is simulated; Table IV reads its first `window` seconds
+            ax.axvline(window, color="0.4", ls=":", lw=1, label=f"Table IV window ends ({window:g} s)")
         ax.set(
-            xlabel="time [s]", ylabel="Fz = push force [N]", title=f"one push of the {tr['object']} weight"
+            xlabel="time [s]",
+            ylabel="Fz = push force [N]",
+            title=f"one push of the {tr['object']} weight ({t_end + float(np.diff(tr['t'][:2])[0]):.0f} s simulated)",
         )
         ax.legend(fontsize=7)
         fig.tight_layout()
