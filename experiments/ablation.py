@@ -33,7 +33,7 @@ def main(argv=None) -> dict:
                     help=f"registry names (default: the paper set {', '.join(registry.PAPER_SET)})")
     ap.add_argument("--seeds", type=int, default=None, help="seeds per method (default: 1, 3 at full)")
     args = ap.parse_args(argv)
-    cfg = common.config_from_args(args)
+    cfg = common.config_from_args(ap, args)
     methods = args.methods or list(registry.PAPER_SET)
     for m in methods:
         registry.get(m)  # unknown names fail here, before any work

@@ -30,8 +30,9 @@ def base_parser(description: str, default_preset: str = "quick") -> argparse.Arg
     return ap
 
 
-def config_from_args(args) -> dict:
-    return configs.get(args.preset, dict(configs.parse_override(s) for s in args.set))
+def config_from_args(ap, args) -> dict:
+    """The validated config of --preset and --set; a bad key or value is a usage error (exit 2)."""
+    return configs.from_cli(ap, args.preset, args.set)
 
 
 def git_commit() -> str:

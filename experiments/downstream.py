@@ -62,7 +62,7 @@ def main(argv=None) -> dict:
     src.add_argument("--checkpoint", default=None, help="one trained run folder (e.g. runs/quick-dino_rd)")
     src.add_argument("--ablation", default=None, help="ablation results folder (its results.json lists runs)")
     args = ap.parse_args(argv)
-    cfg = common.config_from_args(args)
+    cfg = common.config_from_args(ap, args)
     out = Path(args.out or common.ROOT / "results" / f"downstream-{args.preset}").absolute()
     t0 = time.perf_counter()
     checkpoints, source = find_checkpoints(cfg, args, out)

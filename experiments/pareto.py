@@ -74,7 +74,7 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     if args.preset not in REPEATS:
         ap.error(f"--preset {args.preset}: pareto runs at {', '.join(REPEATS)} (paper scale is for a GPU)")
-    cfg = common.config_from_args(args)
+    cfg = common.config_from_args(ap, args)
     methods = args.methods or list(registry.PAPER_SET)
     sizes = args.sizes or list(SIZES)
     for m in methods:

@@ -248,7 +248,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--per-level", type=int, default=None, help="presses per level (default: 180 at quick)")
     ap.add_argument("--factors", nargs="+", default=None, metavar="NAME", help="subset of the factors")
     args = ap.parse_args(argv)
-    cfg = common.config_from_args(args)
+    cfg = common.config_from_args(ap, args)
     abl = Path(args.ablation or common.ROOT / "results" / f"ablation-{args.preset}").absolute()
     saved = common.read_json(abl / "results.json") or {}
     if "per_beta" in saved:  # a loss-weight sweep's folder: its variants must be registered to load them

@@ -90,7 +90,7 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     if any(b < 0 for b in args.betas) or args.alpha <= 0:
         ap.error("betas must be >= 0 and alpha > 0")
-    cfg = common.config_from_args(args)
+    cfg = common.config_from_args(ap, args)
     seeds_n = args.seeds or DEFAULT_SEEDS[args.preset]
     if seeds_n < 1:
         ap.error("--seeds must be at least 1")

@@ -400,7 +400,7 @@ def main(argv=None):
                     "data.train_per_indenter=100")
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
-    cfg = configs.get(args.preset, dict(configs.parse_override(s) for s in args.set))
+    cfg = configs.from_cli(ap, args.preset, args.set)
     try:
         m = generate(cfg, args.out, force=args.force, workers=args.workers, progress=not args.quiet)
     except (FileExistsError, OSError) as e:
