@@ -4,7 +4,7 @@ import flax.linen as nn
 import jax
 import numpy as np
 import pytest
-from test_resume import write_tiny_split
+from _tiny_data import write_tiny_split
 
 import configs
 from ffjax import data, metrics

@@ -6,28 +6,12 @@ import json
 import jax
 import numpy as np
 import pytest
+from _tiny_data import write_tiny_split
 
 import configs
 from ffjax import train
-from ffjax.data.sources import write_rgb
 
 METHOD = "dino_rd"  # the same smoke model and optimizer as test_train: one compiled step for both files
-
-
-def write_tiny_split(path, n, seed):
-    """A split in the on-disk shard layout: forces drawn at random, images a blob whose brightness and
-    offset follow the force (so there is something to learn), plus a flat background."""
-    rng = np.random.default_rng(seed)
-    path.mkdir(parents=True)
-    h, w = configs.get("smoke")["data"]["render_size"]
-    bg = np.full((h, w, 3), 120, np.uint8)
-    force = np.stack([rng.uniform(-2, 2, n), rng.uniform(-2, 2, n), rng.uniform(0, 15, n)], 1).astype(np.float32)
-    yy, xx = np.mgrid[:h, :w]
-    blobs = [np.exp(-((yy - h / 2 - f[1]) ** 2 + (xx - w / 2 - f[0]) ** 2) / (2 * (1 + f[2] / 5) ** 2)) for f in force]
-    depth = np.stack(blobs).astype(np.float32) * force[:, 2, None, None] / 10
-    image = np.clip(bg[None].astype(np.float32) + 80 * depth[..., None], 0, 255).astype(np.uint8)
-    np.savez(path / "shard_00000.npz", image=image, depth=depth, force=force, shape=np.array(["blob"] * n))
-    write_rgb(path / "background.png", bg)
 
 
 @pytest.fixture(scope="module")

@@ -9,11 +9,11 @@ import zipfile
 
 import numpy as np
 import pytest
+from _tiny_data import write_tiny_split
 
 import configs
 from ffjax import convert, train
 from ffjax.convert import reader
-from ffjax.data.sources import write_rgb
 from ffjax.train.checkpoint import CheckpointError
 
 METHOD = "dino_rd"
@@ -23,15 +23,8 @@ METHOD = "dino_rd"
 def run(tmp_path_factory):
     """One finished smoke run (1 epoch of 4 steps on a random split)."""
     root = tmp_path_factory.mktemp("ck_data")
-    rng = np.random.default_rng(0)
-    h, w = configs.get("smoke")["data"]["render_size"]
-    for split, n in (("train", 32), ("val", 8)):
-        (root / split).mkdir()
-        force = rng.uniform(0, 5, (n, 3)).astype(np.float32)
-        image = rng.integers(0, 255, (n, h, w, 3), dtype=np.uint8)
-        np.savez(root / split / "shard_00000.npz", image=image, depth=rng.random((n, h, w), np.float32),
-                 force=force, shape=np.array(["blob"] * n))
-        write_rgb(root / split / "background.png", np.full((h, w, 3), 120, np.uint8))
+    write_tiny_split(root / "train", 32, 0)
+    write_tiny_split(root / "val", 8, 1)
     out = tmp_path_factory.mktemp("ck_run")
     train.train(configs.get("smoke"), METHOD, root, out, progress=False)
     return {"dir": out, "data": root}

@@ -69,15 +69,14 @@ def test_bad_ft_cell_names_line(split, cell, why):
         data.open_split(split)
 
 
-def test_wrong_cell_count_and_empty_path(split):
-    set_row(split, 1, "tactile/001.png,1 2 3 0 0 0")
-    with pytest.raises(data.DataError, match=r"line 3\): 2 cells, the header has 3"):
-        data.open_split(split)
-    set_row(split, 1, "tactile/001.png,depth/001.npy,1 2 3 0 0 0,extra")
-    with pytest.raises(data.DataError, match=r"line 3\): 4 cells, the header has 3"):
-        data.open_split(split)
-    set_row(split, 1, ",depth/001.npy,1 2 3 0 0 0")
-    with pytest.raises(data.DataError, match=r"line 3\): empty tactile path"):
+@pytest.mark.parametrize("row, why", [
+    ("tactile/001.png,1 2 3 0 0 0", "2 cells, the header has 3"),
+    ("tactile/001.png,depth/001.npy,1 2 3 0 0 0,extra", "4 cells, the header has 3"),
+    (",depth/001.npy,1 2 3 0 0 0", "empty tactile path"),
+])
+def test_wrong_cell_count_and_empty_path(split, row, why):
+    set_row(split, 1, row)
+    with pytest.raises(data.DataError, match=rf"line 3\): {why}"):
         data.open_split(split)
 
 

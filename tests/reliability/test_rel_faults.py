@@ -14,10 +14,10 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from _tiny_data import write_tiny_split
 
 import configs
 from ffjax import train
-from ffjax.data.sources import write_rgb
 from ffjax.train import checkpoint as ckpt_lib
 from ffjax.train import loop as loop_lib
 
@@ -25,25 +25,11 @@ METHOD = "dino_rd"  # the smoke model test_train / test_resume compile too
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def write_split(path, n, seed):
-    """A shard-layout split: random forces, a blob image whose size and place follow the force."""
-    rng = np.random.default_rng(seed)
-    path.mkdir(parents=True)
-    h, w = configs.get("smoke")["data"]["render_size"]
-    force = np.stack([rng.uniform(-2, 2, n), rng.uniform(-2, 2, n), rng.uniform(0, 15, n)], 1).astype(np.float32)
-    yy, xx = np.mgrid[:h, :w]
-    depth = np.stack([np.exp(-((yy - h / 2 - f[1]) ** 2 + (xx - w / 2 - f[0]) ** 2) / (2 + f[2])) for f in force])
-    depth = (depth * force[:, 2, None, None] / 10).astype(np.float32)
-    image = np.clip(120 + 80 * depth[..., None], 0, 255).astype(np.uint8).repeat(3, -1)
-    np.savez(path / "shard_00000.npz", image=image, depth=depth, force=force, shape=np.array(["blob"] * n))
-    write_rgb(path / "background.png", np.full((h, w, 3), 120, np.uint8))
-
-
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     root = tmp_path_factory.mktemp("rel_data")
-    write_split(root / "train", 32, 0)
-    write_split(root / "val", 8, 1)
+    write_tiny_split(root / "train", 32, 0)
+    write_tiny_split(root / "val", 8, 1)
     return root
 
 
