@@ -12,7 +12,7 @@ import importlib
 import math
 from typing import Any
 
-PRESETS = ("smoke", "quick", "full", "paper")
+PRESETS = ("smoke", "quick", "full", "gpu", "paper")
 
 
 class ConfigError(ValueError):
@@ -202,10 +202,12 @@ RULES = {
     "model.resnet.widths": _seq(_POS_INT), "model.resnet.blocks": _seq(_POS_INT),
     "model.resnet.stem": _choice("small", "imagenet"),
     "model.regressor.widths": _seq(_POS_INT), "model.regressor.normalize_output": _bool,
+    "model.regressor.feature_norm": _bool,
     "model.decoder.kind": _choice("paper", "tokens"), "model.decoder.channels": _seq(_POS_INT),
     "train.batch_size": _POS_INT, "train.epochs": _POS_INT, "train.lr_backbone": _POS, "train.lr_heads": _POS,
     "train.schedule": _choice("constant", "warmup_cosine"), "train.warmup_steps": _NN_INT,
     "train.ckpt_every": _POS_INT, "train.grad_clip": _NN, "train.nonfinite": _choice("stop", "skip"),
+    "train.force_loss": _choice("newton", "normalized"),
     "pretrain.steps": _NN_INT, "pretrain.batch_size": _POS_INT, "pretrain.lr": _POS,
     "pretrain.corpus_size": _NN_INT, "pretrain.out_dim": _POS_INT, "pretrain.warmup_steps": _NN_INT,
     "pretrain.min_lr_ratio": _PROB, "pretrain.weight_decay": _NN, "pretrain.grad_clip": _NN,
@@ -245,6 +247,9 @@ def _cross_checks(cfg: dict) -> list[str]:
     if isinstance(widths, (list, tuple)) and isinstance(blocks, (list, tuple)) and len(widths) != len(blocks):
         errs.append(f"model.resnet.widths ({len(widths)} stages) and model.resnet.blocks ({len(blocks)}) must "
                     f"have the same length")
+    if _lookup(cfg, "train.force_loss") == "normalized" and _lookup(cfg, "model.regressor.normalize_output") is False:
+        errs.append("train.force_loss='normalized' weighs each axis by its training range, which training records "
+                    "only with model.regressor.normalize_output=True")
     return errs
 
 

@@ -19,7 +19,8 @@ CONFIG = {
         "vit": {"dim": 768, "depth": 12, "heads": 12, "patch": 14, "mlp_ratio": 4.0, "layerscale": 1e-5,
                 "pos_grid": 37},
         "resnet": {"widths": (64, 128, 256, 512), "blocks": (2, 2, 2, 2), "stem": "imagenet"},
-        "regressor": {"widths": (512, 256, 128, 64), "normalize_output": True, "out_scale": None, "out_shift": None},
+        "regressor": {"widths": (512, 256, 128, 64), "normalize_output": True, "out_scale": None, "out_shift": None,
+                      "feature_norm": False},
         "decoder": {"kind": "paper", "channels": (512, 256, 256, 128)},
     },
     "train": {
@@ -33,6 +34,8 @@ CONFIG = {
         "grad_clip": 0.0,
         # a NaN/inf loss or gradient: "stop" (raise, naming the step and batch) or "skip" (drop that update)
         "nonfinite": "stop",
+        # force term of the loss: "newton" (L1 in N, the release) or "normalized" (each axis / its range)
+        "force_loss": "newton",
     },
     "pretrain": {
         "steps": 0, "batch_size": 128, "lr": 5e-4, "corpus_size": 0, "out_dim": 65536,

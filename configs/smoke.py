@@ -19,7 +19,8 @@ CONFIG = {
         "vit": {"dim": 32, "depth": 2, "heads": 2, "patch": 8, "mlp_ratio": 2.0, "layerscale": 1e-5,
                 "pos_grid": None},
         "resnet": {"widths": (8, 16, 16, 32), "blocks": (1, 1, 1, 1), "stem": "small"},
-        "regressor": {"widths": (32, 16, 16, 8), "normalize_output": True, "out_scale": None, "out_shift": None},
+        "regressor": {"widths": (32, 16, 16, 8), "normalize_output": True, "out_scale": None, "out_shift": None,
+                      "feature_norm": True},
         "decoder": {"kind": "tokens", "channels": (16, 8, 8, 8)},
     },
     "train": {
@@ -33,6 +34,8 @@ CONFIG = {
         "grad_clip": 0.0,
         # a NaN/inf loss or gradient: "stop" (raise, naming the step and batch) or "skip" (drop that update)
         "nonfinite": "stop",
+        # force term of the loss: "newton" (L1 in N, the release) or "normalized" (each axis / its range)
+        "force_loss": "normalized",
     },
     "pretrain": {
         "steps": 4, "batch_size": 8, "lr": 5e-4, "corpus_size": 32, "out_dim": 64,

@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from experiments import common, paper_numbers, tables
+from experiments import common, paper_numbers, tables, training_report
 from ffjax import registry
 
-DEFAULT_SEEDS = {"smoke": 1, "quick": 1, "full": 3, "paper": 1}
+DEFAULT_SEEDS = {"smoke": 1, "quick": 1, "full": 3, "gpu": 1, "paper": 1}
 # Table III: (target sensor, which layers calibrate): GelSight units tune the last Linear + LayerNorm,
 # DIGIT (another kind of sensor) the whole regressor, as the paper does.
 CALIBRATIONS = (("mini-2-gel1", "last"), ("mini-3-gel2", "last"), ("digit", "regressor"))
@@ -43,7 +43,7 @@ def main(argv=None) -> dict:
     out = Path(args.out or common.ROOT / "results" / f"ablation-{args.preset}")
     results = run(cfg, methods, seeds, out, data_dir=args.data, force=args.force, progress=not args.quiet)
     print(tables.console_summary(results))
-    print(f"\nwrote {out}/results.json, table1.md, table2.md, table3.md and plots")
+    print(f"\nwrote {out}/results.json, table1.md, table2.md, table3.md, training.md and plots")
     return results
 
 
@@ -82,8 +82,10 @@ def run(cfg: dict, methods, n_seeds: int, out, data_dir=None, force: bool = Fals
                    timings=timings, checkpoints=checkpoints, data=str(data_root), config=cfg,
                    metric="normalized L1 %: mean |error| / (max - min of the training labels) per axis, "
                           "averaged over Fx, Fy, Fz; mae_n = per-axis MAE in newtons")
+    results["training"] = training_report.summarize(checkpoints, data_root)
     results["findings"] = tables.findings(results)
     tables.write_all(results, out)
+    training_report.write(results["training"], out, cfg["preset"])
     return results
 
 
@@ -136,14 +138,14 @@ def evaluate_run(cfg: dict, run_dir: Path, data_root: Path, force: bool) -> dict
     size = int(run_cfg["data"]["input_size"])
     model = models.build(run_cfg["model"], spec, size)
     head = run_cfg["model"]["regressor"]
-    reg = variables["params"]["regressor"]
+    reg, reg_stats = variables["params"]["regressor"], calibrate.regressor_stats(variables)
 
     def feats(kind, name):
         arr = data.load_arrays(data.open_split(dataset.split_dir(data_root, kind, name)), stats, size)
         return calibrate.features(model, variables, arr["image"]), arr["force"]
 
     def score(reg_params, fx):
-        pred = calibrate.predict_from_features(head, reg_params, fx[0])
+        pred = calibrate.predict_from_features(head, reg_params, fx[0], reg_stats)
         return metrics.summarize(pred, fx[1], stats.force_min, stats.force_max)
 
     objects = {o: feats("unseen", o) for o in paper_numbers.OBJECTS}
@@ -155,7 +157,8 @@ def evaluate_run(cfg: dict, run_dir: Path, data_root: Path, force: bool) -> dict
     for target, layers in CALIBRATIONS:
         calib = feats("calib", target)
         tuned = calibrate.fit_regressor(head, reg, *calib, layers=layers, steps=int(cc["steps"]),
-                                        lr=float(cc["lr"]), batch_size=int(cc["batch_size"]), seed=int(cfg["seed"]))
+                                        lr=float(cc["lr"]), batch_size=int(cc["batch_size"]), seed=int(cfg["seed"]),
+                                        reg_stats=reg_stats)
         others = [s for s in paper_numbers.SENSORS if s != target]
         before = {s: result["table2"][s]["nl1"] for s in others}
         after = {s: score(tuned, sensors[s])["nl1"] for s in others}

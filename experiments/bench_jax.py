@@ -227,7 +227,7 @@ def profile_step(cfg: dict, method: str, batch: int, size: int, steps: int = 3, 
 def _phase_split(state, b, rounds: int = 3) -> dict:
     """ms of forward only, forward+backward (value_and_grad) and the full step (+ Adam update)."""
     def loss_fn(params):
-        out, _ = step_lib._forward(state, params, b["image"], state.bn_train, state.key)
+        out, _ = step_lib._forward(state, params, b["image"], True, state.key)
         return step_lib._losses(state, out, b)[0]
 
     fwd = jax.jit(loss_fn)
@@ -307,7 +307,7 @@ def mixed_step(dtype):
 
         def loss_fn(params):
             p = jax.tree.map(lambda x: x.astype(dtype), params)
-            out, stats = step_lib._forward(state, p, batch["image"].astype(dtype), state.bn_train, key)
+            out, stats = step_lib._forward(state, p, batch["image"].astype(dtype), True, key)
             out = jax.tree.map(lambda x: x.astype(jnp.float32), out)
             loss, f, d = step_lib._losses(state, out, batch)
             return loss, (f, d, stats)

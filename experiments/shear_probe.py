@@ -175,7 +175,8 @@ def probes(data_root: Path, runs: list[Path]) -> dict:
         model = models.build(cfg["model"], spec, size)
         ftr = calibrate.features(model, variables, tr["image"])
         fva = calibrate.features(model, variables, va["image"])
-        head = calibrate.predict_from_features(cfg["model"]["regressor"], variables["params"]["regressor"], fva)
+        head = calibrate.predict_from_features(cfg["model"]["regressor"], variables["params"]["regressor"], fva,
+                                              calibrate.regressor_stats(variables))
         out["features"][str(run)] = {"method": spec.name, "dim": int(ftr.shape[1]),
                                      "own_head_mae_n": np.abs(head - yva).mean(0).round(4).tolist(),
                                      "ridge": ridge(ftr, ytr, fva, yva)}

@@ -5,8 +5,12 @@ from ffjax.calibrate.core import (
     features,
     fit_regressor,
     predict_from_features,
+    regressor_stats,
     trainable_mask,
     with_regressor,
 )
 
-__all__ = ["LAYERS", "features", "fit_regressor", "predict_from_features", "trainable_mask", "with_regressor"]
+__all__ = [
+    "LAYERS", "features", "fit_regressor", "predict_from_features", "regressor_stats", "trainable_mask",
+    "with_regressor",
+]

@@ -6,6 +6,9 @@ fraction of the cost: the features are computed once, then the small head trains
 
 layers="last": the final Linear(->3) and the LayerNorm before it (another unit of the same sensor).
 layers="regressor": the whole regressor head (a different kind of sensor, e.g. DIGIT).
+A regressor with a feature normalization (model.regressor.feature_norm) keeps its running statistics
+(`reg_stats`, the regressor's batch_stats) fixed: 100 presses of one indenter would misstate the
+statistics of every other contact. With layers="regressor" its scale and bias train with the rest.
 """
 
 from __future__ import annotations
@@ -42,6 +45,15 @@ def trainable_mask(reg_params: dict, layers: str) -> dict:
     return {k: jax.tree.map(lambda _, k=k: layers == "regressor" or k in last, v) for k, v in reg_params.items()}
 
 
+def regressor_stats(variables: dict):
+    """The regressor's batch_stats in a model's variables (None when its head has no feature normalization)."""
+    return (variables.get("batch_stats") or {}).get("regressor")
+
+
+def _vars(params, stats) -> dict:
+    return {"params": params} if not stats else {"params": params, "batch_stats": stats}
+
+
 def _head(cfg_regressor) -> heads.Regressor:
     return cfg_regressor if isinstance(cfg_regressor, heads.Regressor) else heads.regressor_from_config(cfg_regressor)
 
@@ -58,9 +70,9 @@ def _fit_fns(reg: heads.Regressor, layers: str, lr: float):
     )
 
     @jax.jit
-    def step(params, opt_state, x, y):
+    def step(params, opt_state, stats, x, y):
         def loss_fn(p):
-            return jnp.mean(jnp.abs(reg.apply({"params": p}, x) - y))
+            return jnp.mean(jnp.abs(reg.apply(_vars(p, stats), x) - y))
 
         loss, grads = jax.value_and_grad(loss_fn)(params)
         updates, opt_state = tx.update(grads, opt_state, params)
@@ -70,10 +82,11 @@ def _fit_fns(reg: heads.Regressor, layers: str, lr: float):
 
 
 def fit_regressor(cfg_regressor, reg_params, feats, forces, layers: str = "last", steps: int = 200, lr: float = 1e-4,
-                  batch_size: int = 32, seed: int = 0):
+                  batch_size: int = 32, seed: int = 0, reg_stats=None):
     """Fine-tune `reg_params` on (features, forces) with L1 loss (the decoder loss is off); returns params.
 
-    cfg_regressor: the checkpoint's cfg["model"]["regressor"] (or a Regressor module).
+    cfg_regressor: the checkpoint's cfg["model"]["regressor"] (or a Regressor module). reg_stats: the
+    regressor's batch_stats (`regressor_stats(variables)`), needed when it normalizes its features.
     """
     feats, forces = np.asarray(feats, np.float32), np.asarray(forces, np.float32)
     if len(feats) == 0:
@@ -84,11 +97,12 @@ def fit_regressor(cfg_regressor, reg_params, feats, forces, layers: str = "last"
     # all on one device and committed, as the step's outputs are: otherwise the second call recompiles
     params = jax.device_put(jax.tree.map(np.asarray, reg_params), jax.devices()[0])
     opt_state = jax.device_put(tx.init(params), jax.devices()[0])
+    stats = jax.device_put(jax.tree.map(np.asarray, reg_stats), jax.devices()[0]) if reg_stats else None
     rng = np.random.default_rng(seed)
     bs = min(batch_size, len(feats))
     for _ in range(steps):
         idx = rng.choice(len(feats), bs, replace=False)
-        params, opt_state, _ = step(params, opt_state, feats[idx], forces[idx])
+        params, opt_state, _ = step(params, opt_state, stats, feats[idx], forces[idx])
     return jax.tree.map(np.asarray, params)
 
 
@@ -97,9 +111,10 @@ def _regressor_fn(reg: heads.Regressor):
     return jax.jit(reg.apply)
 
 
-def predict_from_features(cfg_regressor, reg_params, feats) -> np.ndarray:
-    """Forces (N, 3) from backbone features with the given regressor params."""
-    return np.asarray(_regressor_fn(_head(cfg_regressor))({"params": reg_params}, np.asarray(feats, np.float32)))
+def predict_from_features(cfg_regressor, reg_params, feats, reg_stats=None) -> np.ndarray:
+    """Forces (N, 3) from backbone features with the given regressor params (and batch_stats, if it has any)."""
+    fn = _regressor_fn(_head(cfg_regressor))
+    return np.asarray(fn(_vars(reg_params, reg_stats), np.asarray(feats, np.float32)))
 
 
 def with_regressor(variables: dict, reg_params) -> dict:

@@ -87,15 +87,18 @@ def calibrate(checkpoint, data, out, layers: str = "last", steps: int | None = N
     head = ckpt.cfg["model"]["regressor"]
     reg = jax.tree.map(np.asarray, ckpt.variables["params"]["regressor"])  # as numpy, like fit_regressor's output:
     # predict_from_features then compiles once for both (committed device arrays would be another cache entry)
+    stats = core.regressor_stats(ckpt.variables)
+    if stats is not None:
+        stats = jax.tree.map(np.asarray, stats)
     lo, hi = ckpt.stats.force_min, ckpt.stats.force_max
     # predictions for all frames at once, then indexed: one compiled shape for before and after
-    before = metrics.summarize(core.predict_from_features(head, reg, feats)[hold], y[hold], lo, hi)
+    before = metrics.summarize(core.predict_from_features(head, reg, feats, stats)[hold], y[hold], lo, hi)
     new_reg = core.fit_regressor(head, reg, feats[fit], y[fit], layers=layers, steps=steps, lr=lr,
-                                 batch_size=batch_size, seed=seed)
-    pred = core.predict_from_features(head, new_reg, feats)
+                                 batch_size=batch_size, seed=seed, reg_stats=stats)
+    pred = core.predict_from_features(head, new_reg, feats, stats)
     after = metrics.summarize(pred[hold], y[hold], lo, hi)
     after_fit = metrics.summarize(pred[fit], y[fit], lo, hi)
-    before_fit = metrics.summarize(core.predict_from_features(head, reg, feats)[fit], y[fit], lo, hi)
+    before_fit = metrics.summarize(core.predict_from_features(head, reg, feats, stats)[fit], y[fit], lo, hi)
     report = {
         "checkpoint": str(checkpoint), "data": str(data), "layers": layers, "steps": steps, "lr": lr,
         "batch_size": batch_size, "holdout": holdout, "seed": seed, "n": int(len(y)), "n_fit": int(len(fit)),

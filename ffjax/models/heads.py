@@ -52,6 +52,10 @@ class Regressor(nn.Module):
     """feature (B,D) -> force (B,3) in newtons: 4 x (Linear + LayerNorm + GELU), then Linear "out".
 
     The last LayerNorm is "norm_{len(widths)-1}" (norm_3 for 4 widths): calibration tunes it with "out".
+    feature_norm: standardize the feature first (BatchNorm "feature_norm": batch statistics while the head
+    trains, running ones in evaluation). A ViT's CLS feature is mostly one constant vector with a small
+    image-dependent part that the per-sample LayerNorms cannot single out; standardizing across images
+    gives the first layer that part at unit scale. False is the release's architecture (converted weights).
     out_scale/out_shift: a fixed (not trained) affine map of the output, force = raw * scale + shift.
     Training sets them from the training labels (half-range, mid-range) so the head predicts O(1) numbers:
     Adam moves a weight about lr per step, so an identity head needs ~15 N / lr steps just to reach the
@@ -61,9 +65,13 @@ class Regressor(nn.Module):
     widths: tuple[int, ...] = (512, 256, 128, 64)
     out_scale: tuple[float, float, float] | None = None
     out_shift: tuple[float, float, float] | None = None
+    feature_norm: bool = False
 
     @nn.compact
-    def __call__(self, x):
+    def __call__(self, x, train: bool = False):
+        if self.feature_norm:
+            # momentum 0.9: the running statistics follow a fine-tuned backbone within ~10 steps
+            x = nn.BatchNorm(use_running_average=not train, momentum=0.9, epsilon=1e-5, name="feature_norm")(x)
         for i, w in enumerate(self.widths):
             x = WeightNormDense(w, name=f"fc_{i}")(x)
             x = nn.LayerNorm(1e-5, name=f"norm_{i}")(x)  # torch default eps
@@ -77,13 +85,14 @@ class Regressor(nn.Module):
 
 
 def regressor_from_config(cfg_regressor: dict) -> Regressor:
-    """Regressor from cfg["model"]["regressor"] (widths, optional out_scale / out_shift)."""
+    """Regressor from cfg["model"]["regressor"] (widths, optional out_scale / out_shift / feature_norm)."""
 
     def vec(key):
         v = cfg_regressor.get(key)
         return None if v is None else tuple(float(a) for a in v)
 
-    return Regressor(tuple(int(w) for w in cfg_regressor["widths"]), vec("out_scale"), vec("out_shift"))
+    return Regressor(tuple(int(w) for w in cfg_regressor["widths"]), vec("out_scale"), vec("out_shift"),
+                     bool(cfg_regressor.get("feature_norm", False)))
 
 
 def output_affine(force_min, force_max) -> dict:

@@ -20,9 +20,11 @@ class ForceModel(nn.Module):
     regressor: nn.Module
     decoder: nn.Module | None = None
 
-    def __call__(self, images, train: bool = False):
-        enc = self.backbone(images, train=train)
-        out = {"force": self.regressor(enc["feature"]), "feature": enc["feature"]}
+    def __call__(self, images, train: bool = False, backbone_train: bool | None = None):
+        # backbone_train (default: train) lets a frozen backbone keep its BatchNorm statistics while the
+        # heads' own normalization trains on batch statistics
+        enc = self.backbone(images, train=train if backbone_train is None else backbone_train)
+        out = {"force": self.regressor(enc["feature"], train=train), "feature": enc["feature"]}
         if self.decoder is not None:
             out["depth"] = self.decoder(enc["feature"], enc["tokens"])
         return out

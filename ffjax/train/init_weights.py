@@ -69,7 +69,9 @@ def apply(cfg: dict, spec, text: str) -> tuple[dict, tuple | None, dict | None]:
     if kind != "feelanyforce":
         stats = variables.get("batch_stats", {}).get("backbone", {})
         return cfg, (variables["params"]["backbone"], stats), None
-    cfg["model"]["regressor"].update(normalize_output=False, out_scale=None, out_shift=None)
+    # the release's head: no feature normalization, newtons out
+    cfg["model"]["regressor"].update(normalize_output=False, out_scale=None, out_shift=None, feature_norm=False)
+    cfg["train"]["force_loss"] = "newton"  # as the release trained; per-axis weights need a normalized output
     if info.get("input_size"):
         cfg["data"]["input_size"] = int(info["input_size"])
     params = dict(variables["params"])

@@ -26,6 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ffjax import metrics as fmetrics
@@ -38,7 +39,7 @@ from ffjax.train.checkpoint import (
     write_model_json,
 )
 from ffjax.train.state import init_state
-from ffjax.train.step import eval_step, make_mesh, replicate, shard_batch, train_step
+from ffjax.train.step import eval_step, feature_step, make_mesh, replicate, shard_batch, train_step
 
 LOG_NAME, CSV_NAME, SUMMARY_NAME = "train_log.jsonl", "epochs.csv", "summary.json"
 CSV_FIELDS = (
@@ -125,6 +126,33 @@ def validate(state, val_src, stats, input_size: int, batch_size: int, mesh) -> d
     out = {k: v / max(count, 1) for k, v in sums.items()}
     out.update(fmetrics.summarize(np.concatenate(preds), np.concatenate(trues), stats.force_min, stats.force_max))
     return out
+
+
+def refresh_feature_norm(state, source, stats, input_size: int, batch_size: int, mesh, max_samples: int = 2048):
+    """Set the regressor's feature-normalization statistics to the exact mean/variance of the backbone's
+    features over (up to max_samples) training frames, with the current weights; other states unchanged.
+
+    Training normalizes with batch statistics, so this changes no gradient. Evaluation uses the stored
+    statistics, and a running average cannot follow them: a ViT feature varies across images by ~1e-3 of
+    its constant part, which moves more than that with every update, so an average over past steps is off
+    by many standard deviations (measured: validation 28% with it, 4.1% with the batch's own statistics).
+    """
+    reg = (state.batch_stats or {}).get("regressor", {})
+    if "feature_norm" not in reg:
+        return state
+    feats = []
+    for batch in fmetrics.iterate_once(source, stats, input_size, batch_size):
+        if len(batch["image"]) < batch_size or len(feats) * batch_size >= max_samples:
+            break  # full batches only: one compiled shape
+        feats.append(np.asarray(jax.device_get(feature_step(state, shard_batch({"image": batch["image"]}, mesh)[
+            "image"])), np.float64))
+    if not feats:
+        return state
+    f = np.concatenate(feats)
+    dtype = reg["feature_norm"]["mean"].dtype
+    new = {"mean": jnp.asarray(f.mean(0), dtype), "var": jnp.asarray(f.var(0), dtype)}
+    batch_stats = {**state.batch_stats, "regressor": {**reg, "feature_norm": new}}
+    return replicate(state.replace(batch_stats=batch_stats), mesh)
 
 
 def _pad(x: np.ndarray, size: int) -> np.ndarray:
@@ -342,6 +370,7 @@ def train(
             if save or done % log_every == 0:
                 flush()
             if epoch_end:
+                state = refresh_feature_norm(state, train_src, stats, input_size, bs, mesh)
                 _end_epoch(
                     state,
                     meta,

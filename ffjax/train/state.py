@@ -41,6 +41,12 @@ class TrainState:
     # BatchNorm runs in train mode only when the backbone itself trains; a frozen backbone is a
     # fixed feature extractor (running statistics untouched), which is what calibration expects.
     bn_train: bool = struct.field(pytree_node=False, default=True)
+    # The regressor's feature normalization uses batch statistics whenever the regressor trains as a whole
+    # (a frozen backbone included); calibrating only its last layers keeps them fixed.
+    head_bn_train: bool = struct.field(pytree_node=False, default=True)
+    # Per-axis weights of the force L1 (mean 1): None = plain newtons; train.force_loss="normalized"
+    # weighs each axis by 1 / its training range, as the metric does.
+    force_weights: tuple[float, float, float] | None = struct.field(pytree_node=False, default=None)
 
     def variables(self) -> dict:
         out = {"params": self.params}
@@ -95,6 +101,11 @@ class Labeler:
     @property
     def backbone_trains(self) -> bool:
         return self.trainable == "all" and not self.frozen_backbone
+
+    @property
+    def regressor_trains(self) -> bool:
+        """The whole regressor trains (so its feature normalization follows batch statistics)."""
+        return self.trainable != "last"
 
 
 def _path_names(path) -> tuple[str, ...]:
@@ -248,7 +259,36 @@ def init_state(
         alpha=float(getattr(spec, "alpha", 1.0)),
         beta=beta,
         bn_train=getattr(labeler, "backbone_trains", True),
+        head_bn_train=getattr(labeler, "regressor_trains", True),
+        force_weights=force_weights(cfg, cfg_train),
     )
+
+
+FORCE_LOSSES = ("newton", "normalized")
+
+
+def force_weights(cfg: dict, cfg_train: dict) -> tuple[float, float, float] | None:
+    """Per-axis weights of the force loss for train.force_loss, or None for plain newtons.
+
+    "normalized": 1 / training range per axis (the metric's normalization), scaled to mean 1 so the loss
+    stays in newton-like units and alpha/beta keep their meaning. The range is the regressor's out_scale
+    (half the training range), so it needs model.regressor.normalize_output. A state built outside the
+    training loop (benchmarks, tests), before the loop fills out_scale from the labels, weighs axes equally.
+    """
+    kind = cfg_train.get("force_loss", "newton")
+    if kind not in FORCE_LOSSES:
+        raise ValueError(f"train.force_loss must be one of {FORCE_LOSSES}, got {kind!r}")
+    if kind == "newton":
+        return None
+    rc = cfg["model"]["regressor"]
+    scale = rc.get("out_scale")
+    if scale is None and rc.get("normalize_output"):
+        return None
+    if scale is None:
+        raise ValueError("train.force_loss='normalized' needs the training force range: set "
+                         "model.regressor.normalize_output=True (training fills out_scale from the labels)")
+    inv = [1.0 / float(v) for v in scale]
+    return tuple(v * len(inv) / sum(inv) for v in inv)
 
 
 def abstract_state(cfg: dict, spec, input_size: int | None = None, **kw) -> TrainState:

@@ -1,6 +1,8 @@
 """The pure training and evaluation steps, each jitted once, and data-parallel placement.
 
-loss = alpha * L1(force, N) + beta * MSE(depth in [0, 1]); beta is 0 for methods without a depth head.
+loss = alpha * L1(force) + beta * MSE(depth in [0, 1]); beta is 0 for methods without a depth head. The force
+L1 is in newtons averaged over axes, or (train.force_loss="normalized") weighted per axis by 1 / its
+training range; the logged force_l1 is always plain newtons.
 Data parallel: the batch is sharded along a 1-D mesh of all devices and the state is replicated;
 XLA inserts the gradient all-reduce, so the numbers equal a single-device step up to float
 summation order. One device is the degenerate mesh.
@@ -21,11 +23,14 @@ TRACE_COUNT = {"train": 0, "eval": 0}
 
 
 def _forward(state: TrainState, params, images, train: bool, key):
+    """train: a training step. The backbone and the heads' normalization each follow batch statistics
+    only when they train (state.bn_train, state.head_bn_train)."""
     variables = {"params": params}
     if state.batch_stats:
         variables["batch_stats"] = state.batch_stats
     mutable = ["batch_stats"] if (train and state.batch_stats) else False
-    res = state.model.apply(variables, images, train=train, rngs={"dropout": key}, mutable=mutable)
+    res = state.model.apply(variables, images, train=train and state.head_bn_train,
+                            backbone_train=train and state.bn_train, rngs={"dropout": key}, mutable=mutable)
     if mutable:
         out, updates = res
         return out, updates["batch_stats"]
@@ -34,17 +39,21 @@ def _forward(state: TrainState, params, images, train: bool, key):
 
 def _losses(state: TrainState, out, batch, weights=None):
     """Per-batch force L1 and depth MSE; `weights` (B,) masks padded rows in evaluation."""
-    f_err = jnp.mean(jnp.abs(out["force"] - batch["force"]), axis=-1)
+    abs_err = jnp.abs(out["force"] - batch["force"])
+    f_err = jnp.mean(abs_err, axis=-1)
+    # the objective's force term: equal to f_err unless the axes are weighted
+    f_obj = f_err if state.force_weights is None else jnp.mean(abs_err * jnp.asarray(state.force_weights), axis=-1)
     if state.beta and "depth" in out:
         d_err = jnp.mean(jnp.square(out["depth"] - batch["depth"]), axis=tuple(range(1, out["depth"].ndim)))
     else:
         d_err = jnp.zeros_like(f_err)
     if weights is None:
-        force_l1, depth_mse = jnp.mean(f_err), jnp.mean(d_err)
+        force_l1, force_obj, depth_mse = jnp.mean(f_err), jnp.mean(f_obj), jnp.mean(d_err)
     else:
         n = jnp.maximum(jnp.sum(weights), 1.0)
-        force_l1, depth_mse = jnp.sum(f_err * weights) / n, jnp.sum(d_err * weights) / n
-    loss = state.alpha * force_l1 + state.beta * depth_mse
+        force_l1, force_obj = jnp.sum(f_err * weights) / n, jnp.sum(f_obj * weights) / n
+        depth_mse = jnp.sum(d_err * weights) / n
+    loss = state.alpha * force_obj + state.beta * depth_mse
     return loss, force_l1, depth_mse
 
 
@@ -57,7 +66,7 @@ def _train_step(state: TrainState, batch: dict):
         # Frozen leaves get stop_gradient: their backward pass is never built (a frozen backbone
         # costs a forward only), and set_to_zero keeps them fixed.
         params = jax.tree.map(lambda p, l: jax.lax.stop_gradient(p) if l == "frozen" else p, params, labels)
-        out, new_stats = _forward(state, params, batch["image"], state.bn_train, key)
+        out, new_stats = _forward(state, params, batch["image"], True, key)
         loss, force_l1, depth_mse = _losses(state, out, batch)
         return loss, (force_l1, depth_mse, new_stats)
 
@@ -88,12 +97,19 @@ def _eval_step(state: TrainState, batch: dict):
     return {"loss": loss, "force_l1": force_l1, "depth_mse": depth_mse, "force": out["force"]}
 
 
+def _feature_step(state: TrainState, images):
+    out, _ = _forward(state, state.params, images, False, state.key)
+    return out["feature"]
+
+
 # train_step(state, batch) -> (state, {loss, force_l1, depth_mse, grad_norm}); the input state is donated.
 # When loss or grad_norm is NaN/inf that step's update is dropped (the step counter still moves on).
 train_step = jax.jit(_train_step, donate_argnums=0)
 # eval_step(state, batch) -> {loss, force_l1, depth_mse, force (B,3)}; an optional batch["mask"] (B,)
 # weights rows, so a padded last batch averages over its real rows only.
 eval_step = jax.jit(_eval_step)
+# feature_step(state, images) -> the backbone feature (B, D) in evaluation mode
+feature_step = jax.jit(_feature_step)
 
 
 def make_mesh(devices=None) -> Mesh:
