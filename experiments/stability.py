@@ -28,7 +28,7 @@ from experiments.tables import save_png
 from ffjax import registry
 
 SENSOR = "mini-1-gel1"
-PER_LEVEL = {"smoke": 9, "quick": 180, "full": 360, "paper": 360}
+PER_LEVEL = {"smoke": 9, "quick": 180, "full": 360, "gpu": 360, "paper": 360}
 N_LEVELS = {"smoke": 2}  # other presets: every level of each factor
 STREAM = 1000  # sampling stream / render seed block no dataset split uses (held out)
 SHEAR_N = 1.0  # |F_t| of the shear-angle sets, N

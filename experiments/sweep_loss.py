@@ -24,7 +24,7 @@ from experiments import paper_numbers as P
 from ffjax import registry
 
 DEFAULT_BETAS = (0.0, 1.0, 3.0, 10.0, 30.0)
-DEFAULT_SEEDS = {"smoke": 1, "quick": 1, "full": 3, "paper": 1}
+DEFAULT_SEEDS = {"smoke": 1, "quick": 1, "full": 3, "gpu": 1, "paper": 1}
 # What each run is scored on (from its ablation evaluation): unseen objects = Table I mean; unseen
 # sensors = Table II mean over the 8 GelSight unit x gel combinations other than the training one.
 METRICS = {"unseen_objects": "unseen objects (Table I mean)",

@@ -1,0 +1,21 @@
+"""`gpu`: the converged regime on one GPU: quick's data twice over, quick's old (larger) ViT, batch 256.
+
+Sized for <= 10 min of the whole ablation on one H100-class GPU, from the issue's measurements there (jax
+0.11 + CUDA): the training loop ran at ~18 ms per step for the quick ViT at batch 64, and at these sizes a
+step costs about the same at batch 256, so ~6,000 steps per method see ~1.5 M samples (~130 epochs of the
+12,000 training presses; the earlier GPU runs' 150 epochs at batch 64 saw 0.9 M). Not yet run on a GPU by
+this project: the tables in README come from quick and full.
+"""
+
+import copy
+
+from configs.quick import CONFIG as _QUICK
+
+CONFIG = copy.deepcopy(_QUICK)
+CONFIG["data"].update(train_per_indenter=1200, val_per_indenter=100, unseen_per_object=200,
+                      sensor_test_per_indenter=60)
+CONFIG["model"]["vit"].update(dim=128, depth=4, heads=4)
+CONFIG["model"]["resnet"].update(widths=(32, 64, 128, 256), blocks=(2, 2, 2, 2))
+CONFIG["model"]["decoder"].update(channels=(64, 32, 32, 16))
+CONFIG["train"].update(batch_size=256, epochs=128, warmup_steps=200, ckpt_every=1000)
+CONFIG["pretrain"].update(steps=1000, batch_size=128, corpus_size=20000)
