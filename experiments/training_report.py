@@ -92,22 +92,31 @@ def plot(report: dict, path: Path, preset: str) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    from matplotlib.ticker import FixedLocator, NullLocator, ScalarFormatter
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.4), sharey=True)
     colors = plt.cm.tab10(np.arange(max(len(report["methods"]), 1)))
-    for (m, r), color in zip(report["methods"].items(), colors):
+    # identical runs (e.g. DINO_F R and DINO_F RD: same regressor, same gradients) would hide each other
+    styles = ("-", "--", ":", "-.")
+    for k, ((m, r), color) in enumerate(zip(report["methods"].items(), colors)):
         for i, cur in enumerate(r["curves"]):
             if not cur:
                 continue
             for ax, key in zip(axes, ("time_s", "step")):
                 ax.plot([p[key] for p in cur], [p["val_nl1"] for p in cur], color=color, alpha=0.9 if i == 0 else 0.4,
-                        label=tables._name(m) if i == 0 else None, marker="." if len(cur) < 40 else None)
+                        ls=styles[k % len(styles)], lw=1.6, label=tables._name(m) if i == 0 else None,
+                        marker="." if len(cur) < 40 else None)
+    ticks = [2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 30]
     for ax, label in zip(axes, ("training wall-clock time (s)", "training steps")):
         ax.axhline(report["constant"]["nl1"], color="0.4", ls="--", lw=1, label="constant prediction")
         ax.set_xlabel(label)
         ax.set_yscale("log")
-        ax.grid(True, which="both", alpha=0.3)
+        ax.yaxis.set_major_locator(FixedLocator(ticks))
+        ax.yaxis.set_major_formatter(ScalarFormatter())
+        ax.yaxis.set_minor_locator(NullLocator())
+        ax.grid(True, alpha=0.3)
     axes[0].set_ylabel("validation normalized L1 (%)")
-    axes[1].legend(fontsize=8, loc="upper right")
+    axes[1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     fig.suptitle(f"Accuracy against training time (preset {preset}; one cosine schedule per run)")
     return tables.save_png(fig, path)
 
