@@ -31,9 +31,9 @@ from ffjax import registry
 
 # name: (backbone kind, overrides of cfg["model"][kind]); {} = the preset's own model. All patch 8.
 SIZES = {
-    "vit-xs": ("vit", {"dim": 64, "depth": 2, "heads": 2}),
-    "vit-s": ("vit", {}),  # quick/full: dim 128 / depth 4 / heads 4
-    "vit-m": ("vit", {"dim": 192, "depth": 6, "heads": 3}),
+    "vit-xs": ("vit", {"dim": 32, "depth": 2, "heads": 2}),
+    "vit-s": ("vit", {}),  # quick/full: dim 64 / depth 2 / heads 4
+    "vit-m": ("vit", {"dim": 128, "depth": 4, "heads": 4}),  # the quick ViT before it was sized to the scene
     "resnet": ("resnet", {}),
 }
 # smoke: the ladder around the smoke ViT (dim 32 / depth 2) by depth only: equal feature widths let the
@@ -48,7 +48,8 @@ ANCHORS = {"vit": "dino_rd", "resnet": "resnet_rd"}  # the one method trained at
 # (warm-up calls, calls per round, rounds) per measurement; the smoke preset only checks the code path.
 REPEATS = {"smoke": {"b1": (2, 3, 3), "b32": (1, 2, 3), "train": (1, 2, 3)},
            "quick": {"b1": (5, 20, 7), "b32": (2, 5, 7), "train": (2, 4, 5)},
-           "full": {"b1": (5, 20, 7), "b32": (2, 5, 7), "train": (2, 4, 5)}}
+           "full": {"b1": (5, 20, 7), "b32": (2, 5, 7), "train": (2, 4, 5)},
+           "gpu": {"b1": (5, 20, 7), "b32": (2, 5, 7), "train": (2, 4, 5)}}
 PANELS = (  # (key, y metric, x metric, x is minimized, title)
     ("t1_latency", "table1", "latency_b1_ms", True, "Table I error vs batch-1 latency"),
     ("t1_train", "table1", "train_img_s", False, "Table I error vs training throughput"),

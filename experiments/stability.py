@@ -32,6 +32,7 @@ PER_LEVEL = {"smoke": 9, "quick": 180, "full": 360, "gpu": 360, "paper": 360}
 N_LEVELS = {"smoke": 2}  # other presets: every level of each factor
 STREAM = 1000  # sampling stream / render seed block no dataset split uses (held out)
 SHEAR_N = 1.0  # |F_t| of the shear-angle sets, N
+FLAT_SIDES_MM = (3.0, 5.0, 7.0, 10.0, 14.0, 18.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,6 +63,9 @@ def factors(cfg: dict) -> tuple[Factor, ...]:
         Factor("drift", "background gain drift (fraction)", (0.0, 0.02, 0.05, 0.1, 0.15, 0.2), 0,
                "the background frame comes from the sensor in an earlier state (exposure gain +level, LEDs "
                "drifted by level/2) while the frame is from the current one"),
+        Factor("flat_size", "flat face side (mm)", FLAT_SIDES_MM, FLAT_SIDES_MM.index(7.0),
+               "a square flat punch made like the cube indenter (7 mm, the largest flat face in training), "
+               "its side from 3 to 18 mm (the pad sees 20.3 x 15.2 mm), posed and loaded as the cube is"),
     )
 
 
@@ -108,12 +112,17 @@ def presses(cfg: dict, f: Factor, li: int, n: int, sensor) -> dict:
     levels of noise, illumination and drift are the very same test set."""
     from ffjax import sim
     from ffjax.sim import dataset
+    from ffjax.sim.shapes import flat_punch
 
+    level, fz_max = f.levels[li], float(cfg["data"]["fz_max"])
+    if f.name == "flat_size":  # the cube's poses and loads, pressed with a flat face of another size
+        spec = dataset.SplitSpec("stability", SENSOR, ("cube",), n, STREAM)
+        p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
+        return {"shapes": (flat_punch(level),), **p}
     shapes = tuple(s for s in sim.INDENTERS if s != dataset.CALIB_SHAPE)
     spec = dataset.SplitSpec("stability", SENSOR, shapes, math.ceil(n / len(shapes)), STREAM)
     p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
     rng = np.random.default_rng([int(cfg["seed"]), STREAM, 7])
-    level, fz_max = f.levels[li], float(cfg["data"]["fz_max"])
     if f.name == "edge":
         fh, fw = sensor.fov_mm
         theta = rng.uniform(0, 2 * np.pi, n)

@@ -41,7 +41,9 @@ def test_every_entry_builds(smoke, name):
     variables, out = _shapes(models.build(cfg_model, spec, s), images, train=True)
     want = {"backbone", "regressor"} | ({"decoder"} if spec.depth_head else set())
     assert set(variables["params"]) == want
-    assert ("batch_stats" in variables) == (spec.backbone == "resnet")
+    # BatchNorm statistics: the ResNet's, and the regressor's feature normalization (smoke has it on)
+    assert ("backbone" in variables.get("batch_stats", {})) == (spec.backbone == "resnet")
+    assert set(variables["batch_stats"]["regressor"]["feature_norm"]) == {"mean", "var"}
     assert out["force"].shape == (2, 3)
     assert out["feature"].shape[0] == 2
     assert ("depth" in out) == spec.depth_head

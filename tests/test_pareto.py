@@ -42,8 +42,8 @@ def test_size_cfg_overrides_only_the_backbone():
 
     cfg = configs.get("quick")
     m = pareto.size_cfg(cfg, "vit-m")["model"]
-    assert (m["vit"]["dim"], m["vit"]["depth"], m["vit"]["patch"]) == (192, 6, cfg["model"]["vit"]["patch"])
-    assert m["resnet"] == cfg["model"]["resnet"] and cfg["model"]["vit"]["dim"] == 128
+    assert (m["vit"]["dim"], m["vit"]["depth"], m["vit"]["patch"]) == (128, 4, cfg["model"]["vit"]["patch"])
+    assert m["resnet"] == cfg["model"]["resnet"] and cfg["model"]["vit"]["dim"] == 64
 
 
 def test_backbone_folder_per_size(tmp_path, monkeypatch):

@@ -184,10 +184,18 @@ def cross():  # two rounded bars 12 x 2.4 mm
 
 
 def cube():  # 7 mm square face, knurled
+    return flat_punch(7.0).height
+
+
+def flat_punch(side_mm: float) -> Shape:
+    """A knurled square flat punch like the cube indenter (0.5 mm rounded rim) with any face size: the
+    contact-size factor of experiments.stability (the cube, 7 mm, is the largest flat face in training)."""
+    if not 0 < side_mm < 2 * _EXTENT_MM:
+        raise ValueError(f"side_mm must be in (0, {2 * _EXTENT_MM}) mm, got {side_mm}")
     X, Y = _grid()
-    d = np.minimum(3.5 - np.abs(X), 3.5 - np.abs(Y))
+    d = np.minimum(side_mm / 2 - np.abs(X), side_mm / 2 - np.abs(Y))
     knurl = 0.03 * (2 + np.sin(2 * np.pi * (X + Y) / 0.7) + np.sin(2 * np.pi * (X - Y) / 0.7))
-    return _rounded(d, 0.5) + knurl
+    return Shape(_rounded(d, 0.5) + knurl, MAP_MM_PER_PX, name=f"flat_punch_{side_mm:g}mm", kind="user")
 
 
 def prism_edge():  # 110-degree wedge, edge rounded 0.3 mm, 12 mm long
