@@ -91,7 +91,6 @@ def plot(report: dict, path: Path, preset: str) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
     from matplotlib.ticker import FixedLocator, NullLocator, ScalarFormatter
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.4), sharey=True)
