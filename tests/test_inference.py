@@ -119,7 +119,8 @@ def test_bundle_round_trip_and_no_depth_head(run_dir, batch, tmp_path):
 
     params = {k: v for k, v in ckpt.variables["params"].items() if k != "decoder"}
     ckpt.spec = registry.get("dino_r")
-    inference.save_bundle(tmp_path / "r", ckpt, {"params": params})
+    # the regressor's feature normalization keeps its statistics in batch_stats: they travel with the params
+    inference.save_bundle(tmp_path / "r", ckpt, {"params": params, "batch_stats": ckpt.variables["batch_stats"]})
     r = inference.load(tmp_path / "r")
     r.set_background(batch["background"])
     np.testing.assert_allclose(r.predict(batch["image"]), a.predict(batch["image"]), rtol=1e-5, atol=1e-5)

@@ -182,11 +182,16 @@ def test_data_parallel_8_devices_matches_1(cfg, tmp_path):
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-4000:]
     ref_metrics, ref_params = two_steps(cfg)
     got = np.load(out)
-    np.testing.assert_allclose(got["metrics"], ref_metrics, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(got["metrics"][:, :3], ref_metrics[:, :3], rtol=1e-5, atol=1e-7)  # losses
+    # The gradient norm goes through the regressor's feature normalization, which divides the smoke ViT's
+    # feature variation (~2e-5 around ~0.8, where float32 resolves ~6e-8) by its batch std: the summation
+    # order of the batch mean shows there at ~1e-3 relative.
+    np.testing.assert_allclose(got["metrics"][:, 3], ref_metrics[:, 3], rtol=5e-3)
     # Adam divides by sqrt(v): summation-order noise on near-zero gradients becomes +-lr steps, so
-    # params agree to a couple of learning rates, while losses and gradient norms agree to float noise.
+    # params agree within Adam's bound (each of the two steps moves a coordinate by at most ~lr, so two runs
+    # differ by at most 4 lr where a near-zero gradient flips sign), while losses agree to float noise.
     for i, ref in enumerate(jax.tree.leaves(jax.device_get(ref_params))):
-        np.testing.assert_allclose(got[str(i)], ref, rtol=0, atol=2 * cfg["train"]["lr_heads"])
+        np.testing.assert_allclose(got[str(i)], ref, rtol=0, atol=4 * cfg["train"]["lr_heads"])
 
 
 def test_paper_scale_step_traces():
