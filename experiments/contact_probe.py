@@ -142,19 +142,30 @@ def plot(r: dict, path: Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FixedLocator, NullLocator, ScalarFormatter
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    done = [v for v in r["shapes"].values() if v.get("n")]
+    largest = max((v["area_mm2"] for v in done if v["kind"] == "indenter"), default=None)
     for s, v in r["shapes"].items():
         if not v.get("n"):
             continue
         style = {"indenter": ("o", "tab:blue"), "object": ("s", "tab:red")}[v["kind"]]
         for ax, y in zip(axes, ("sens_train", "edge_share")):
-            ax.scatter(v["area_mm2"], v[y] * (100 if y == "edge_share" else 1), marker=style[0], color=style[1])
-            ax.annotate(s.replace("_", " "), (v["area_mm2"], v[y] * (100 if y == "edge_share" else 1)), fontsize=7,
-                        xytext=(3, 3), textcoords="offset points")
+            val = v[y] * (100 if y == "edge_share" else 1)
+            ax.scatter(v["area_mm2"], val, marker=style[0], color=style[1])
+            # the right panel's upper cluster (nearly all the change at the outline) would be a pile of labels
+            if y == "sens_train" or v["edge_share"] < 0.95:
+                ax.annotate(s.replace("_", " "), (v["area_mm2"], val), fontsize=7, xytext=(3, 3),
+                            textcoords="offset points")
     for ax, label in zip(axes, ("image change per N at the training size (8-bit RMS)",
                                 "share of the change within 1 mm of the outline (%)")):
         ax.set_xscale("log")
+        ax.xaxis.set_major_locator(FixedLocator([10, 20, 50, 100, 200, 500]))
+        ax.xaxis.set_major_formatter(ScalarFormatter())
+        ax.xaxis.set_minor_locator(NullLocator())
+        if largest:
+            ax.axvline(largest, color="0.4", ls="--", lw=1, label="largest training contact")
         ax.set_xlabel("contact area at Fz >= half range (mm^2, median)")
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
