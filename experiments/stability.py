@@ -33,6 +33,7 @@ N_LEVELS = {"smoke": 2}  # other presets: every level of each factor
 STREAM = 1000  # sampling stream / render seed block no dataset split uses (held out)
 SHEAR_N = 1.0  # |F_t| of the shear-angle sets, N
 FLAT_SIDES_MM = (3.0, 5.0, 7.0, 10.0, 14.0, 18.0)
+TILT_TURN_DEG = (0.0, 45.0, 90.0, 135.0, 180.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,6 +67,10 @@ def factors(cfg: dict) -> tuple[Factor, ...]:
         Factor("flat_size", "flat face side (mm)", FLAT_SIDES_MM, FLAT_SIDES_MM.index(7.0),
                "a square flat punch made like the cube indenter (7 mm, the largest flat face in training), "
                "its side from 3 to 18 mm (the pad sees 20.3 x 15.2 mm), posed and loaded as the cube is"),
+        Factor("tilt_shear", "tilt direction turned from the shear's (deg)", TILT_TURN_DEG, 0,
+               "the training sampling, except that each body's tilt (same magnitude) is turned by the level away "
+               "from its shear's direction: at 0 the tool pushes along its tilted axis as in training; otherwise "
+               "it leans one way and pushes another (a lateral move after contact)"),
     )
 
 
@@ -139,6 +144,10 @@ def presses(cfg: dict, f: Factor, li: int, n: int, sensor) -> dict:
         ft = SHEAR_N * np.stack([np.full(n, np.cos(a)), np.full(n, np.sin(a))], 1)
         p["force"] = np.column_stack([ft, fz])
         p["tilt_deg"] = np.degrees(np.arctan(ft / fz[:, None]))  # the tool pushes along its tilted axis
+    elif f.name == "tilt_shear":  # same forces, the body's lean turned away from the push
+        a = np.radians(level)
+        tx, ty = p["tilt_deg"][:, 0], p["tilt_deg"][:, 1]
+        p["tilt_deg"] = np.column_stack([tx * np.cos(a) - ty * np.sin(a), tx * np.sin(a) + ty * np.cos(a)])
     return {"shapes": shapes, **p}
 
 
@@ -371,6 +380,13 @@ MECHANISM = {
                    "axis a method reads); the LEDs' per-side colour and intensity can add a real asymmetry on top",
     "drift": "a background from another sensor state leaves a uniform offset over the whole difference image, "
              "a pattern no training image had",
+    "flat_size": "a flat face shows its load only along its outline (inside, the pressed gel stays flat and "
+                 "shades like the background), and faces larger than the training cube make contacts and "
+                 "stiffnesses no training press had",
+    "tilt_shear": "in training the shear is Fz tan(tilt) plus noise, so the contact's tilted geometry (which side "
+                  "presses deeper) predicts the shear as well as the gel's sideways strain does; a model that reads "
+                  "the tilt cue predicts the shear along the lean, and its shear error grows as the lean turns away "
+                  "(at 180 deg it reads the shear backwards), while one that reads the strain does not change",
 }
 
 
@@ -405,6 +421,13 @@ def summary(results: dict) -> str:
             if bias:
                 line += (f" Mean signed Fz error in the top bin: {', '.join(f'{b:+.2f} N' for b in bias)} "
                          f"(negative = under-predicting beyond the training range).")
+        if fn == "tilt_shear":
+            shear = [(m, v["mae_n"][0], v["mae_n"][-1]) for m, v in e["methods"].items()
+                     if v["mae_n"][0] and v["mae_n"][-1]]
+            if shear:
+                line += (f" Shear MAE (Fx / Fy) at {e['levels'][0]:g} -> {e['levels'][-1]:g} deg: "
+                         + "; ".join(f"{_name(m)} {a[0]:.2f} / {a[1]:.2f} -> {b[0]:.2f} / {b[1]:.2f} N"
+                                     for m, a, b in shear) + ".")
         if sum(e["dropped"]):
             line += f" Presses the simulator refused (dropped): {e['dropped']}."
         line += f" Hypothesis: {MECHANISM.get(fn, '')}."

@@ -86,7 +86,8 @@ def test_stability_writes_files(abl):
     for name in names:
         assert (out / name).stat().st_size > 0, name
     saved = json.loads((out / "results.json").read_text())
-    assert set(saved["factors"]) == {"noise", "illumination", "edge", "force", "shear_angle", "drift", "flat_size"}
+    assert set(saved["factors"]) == {"noise", "illumination", "edge", "force", "shear_angle", "drift", "flat_size",
+                                      "tilt_shear"}
     for e in saved["factors"].values():
         v = e["methods"][METHOD]
         assert len(e["levels"]) == 2 and len(v["nl1"]) == 2 and all(n > 0 for n in e["n"])
@@ -110,3 +111,21 @@ def test_results_notebook_runs(abl, monkeypatch):
 
 def test_simulator_notebook_runs(tmp_path, monkeypatch):
     _execute(ROOT / "notebooks" / "simulator.ipynb", tmp_path, monkeypatch)
+
+
+def test_tilt_shear_factor_turns_only_the_lean():
+    import numpy as np
+
+    import configs
+    from ffjax import sim
+
+    cfg = configs.get("smoke")
+    f = next(x for x in stability.factors(cfg) if x.name == "tilt_shear")
+    sensor = sim.get_sensor(stability.SENSOR)
+    base, turned = (stability.presses(cfg, f, f.levels.index(a), 12, sensor) for a in (0.0, 180.0))
+    np.testing.assert_array_equal(base["force"], turned["force"])  # same forces and poses, only the lean moves
+    np.testing.assert_array_equal(base["x_mm"], turned["x_mm"])
+    np.testing.assert_allclose(turned["tilt_deg"], -base["tilt_deg"], atol=1e-12)
+    # at the nominal level the shear points along the lean, as the dataset samples it
+    t, ft = base["tilt_deg"], base["force"][:, :2]
+    assert np.mean(np.sum(np.sign(t) == np.sign(ft), axis=1) == 2) > 0.6

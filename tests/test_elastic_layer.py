@@ -1,0 +1,83 @@
+"""The reference elastic layer (ffjax.sim.elastic_layer) against closed forms, and the layer check experiment."""
+
+import numpy as np
+import pytest
+
+from ffjax.sim import elastic_layer as el
+
+G = 0.15
+
+
+def _disc(a, t, dx, margin):
+    n = int(np.ceil((2 * a + 2 * margin) / dx))
+    n += n % 2
+    x = (np.arange(n) - (n - 1) / 2) * dx
+    X, Y = np.meshgrid(x, x)
+    return np.where(np.hypot(X, Y) < a, 0.0, el.FAR), el.Layer((n, n), dx, t, G), X, Y
+
+
+def test_compliance_limits_and_branches():
+    t = 2.0
+    k = np.array([1e-5, 50.0])
+    c = el.compliance(k, t, G)
+    assert c[0] == pytest.approx(k[0] ** 2 * t**3 / (3 * G), rel=1e-6)  # thin layer: lubrication
+    assert c[1] == pytest.approx(1 / (2 * G * k[1]), rel=1e-9)  # thick: Boussinesq half-space
+    assert el.compliance(np.array([0.0]), t, G)[0] == 0.0
+    for x in (1e-3, 20.0):  # the series and the half-space branches meet the exact formula
+        below, above = el.compliance(np.array([x * (1 - 1e-9), x * (1 + 1e-9)]) / t, t, G)
+        assert below == pytest.approx(above, rel=1e-5)
+    kk = np.linspace(1e-3, 30, 500)
+    assert np.all(el.compliance(kk, t, G) <= 1 / (2 * G * kk) + 1e-12)  # the glass only stiffens the layer
+
+
+def test_flat_punch_between_half_space_and_thin_layer():
+    # a disc punch with a << t reads the half-space stiffness F = 8 G a delta, raised a little by the glass
+    # (Hayes et al. 1972 give ~1.1 at a/t = 0.1 and ~1.2 at 0.2 for nu = 0.5)
+    ratios = []
+    for t in (10.0, 5.0):
+        h, layer, _, _ = _disc(1.0, t, 0.1, 2 * t)
+        r = el.solve_contact(h, layer, 1.0)
+        ratios.append(1.0 / (8 * G * 1.0 * r["delta"]))
+    assert 1.0 < ratios[0] < 1.2 and ratios[0] < ratios[1] < 1.4
+    # a >> t: the squeezed film, F = 3 pi G delta a^4 / (8 t^3), approached from above as a/t grows
+    thin = []
+    for a in (5.0, 10.0):
+        h, layer, _, _ = _disc(a, 0.5, 0.25, 3.0)
+        r = el.solve_contact(h, layer, 1.0)
+        thin.append(1.0 / (3 * np.pi * G * r["delta"] * a**4 / (8 * 0.5**3)))
+    assert 1.0 < thin[1] < thin[0] < 2.0
+
+
+def test_sphere_contact_conditions():
+    dx, t, force = 0.1, 2.0, 2.0
+    n = 160
+    x = (np.arange(n) - (n - 1) / 2) * dx
+    X, Y = np.meshgrid(x, x)
+    h = (X**2 + Y**2) / (2 * 5.0)
+    layer = el.Layer(h.shape, dx, t, G)
+    r = el.solve_contact(h, layer, force)
+    p, u, d = r["p"], r["u"], r["delta"]
+    gap = h + u - d
+    assert r["iterations"] < 2000
+    assert p.min() >= 0 and p.sum() * dx * dx == pytest.approx(force, rel=1e-9)
+    assert gap.min() > -2e-3 * d  # the sphere does not pass through the surface
+    assert np.abs(gap[r["contact"]]).max() < 2e-3 * d  # and touches it wherever it pushes
+    assert np.hypot(X, Y)[r["contact"]].max() < 0.3 * x.max()  # a compact contact, not the whole grid
+    with pytest.raises(ValueError, match="does not match"):
+        el.solve_contact(h[:-1], layer, force)
+    with pytest.raises(ValueError, match="force_n"):
+        el.solve_contact(h, layer, 0.0)
+
+
+def test_layer_check_smoke(tmp_path):
+    from experiments import layer_check
+
+    r = layer_check.main(["--preset", "smoke", "--out", str(tmp_path), "--quiet"])
+    for f in ("results.json", "layer_check.md", "layer_check.png"):
+        assert (tmp_path / f).stat().st_size > 0
+    rows = [w for v in r["shapes"].values() for w in v["rows"]]
+    assert rows and all(w["delta_sim"] > 0 and w["delta_ref"] > 0 and w["area_ref"] > 0 for w in rows)
+    assert all(w["sens_train_sim"] > 0 and w["sens_train_ref"] > 0 for w in rows)
+    # the incompressible layer pushes gel up around a flat face; independent columns cannot
+    flat = r["shapes"]["flat_14mm"]["rows"][0]
+    assert flat["bulge_ref"] > 0.05 and flat["sink_band_ref"] > 0
