@@ -33,6 +33,11 @@ PER_SHAPE = {"smoke": 3, "quick": 24, "full": 48, "gpu": 48, "paper": 48}
 NATIVE = {"smoke": (60, 80)}  # smoke: a quarter of the native size, to keep the tests fast
 
 
+def change_per_newton(diff: np.ndarray, df: float = DF) -> float:
+    """RMS of a frame difference per newton (8-bit levels / N): how much a network sees Fz move."""
+    return float(np.sqrt(np.mean(diff**2)) / df)
+
+
 def _edge_band(contact: np.ndarray, px: int) -> np.ndarray:
     import cv2
 
@@ -66,7 +71,7 @@ def probe_shape(shape: str, cfg: dict, n: int, native) -> dict:
                 a = sim.press(shape, sensor, f0, *pose[:3], pose[3], 0, size, noise=False)
                 b = sim.press(shape, sensor, f1, *pose[:3], pose[3], 0, size, noise=False)
                 diff = b.image.astype(np.float32) - a.image.astype(np.float32)
-                row[f"sens_{name}"] = float(np.sqrt(np.mean(diff**2)) / DF)
+                row[f"sens_{name}"] = change_per_newton(diff)
                 if name == "native":
                     h = body_heights(sim.get_shape(shape), sensor, size, *pose)
                     pen, hmin = a.meta["penetration_mm"], float(h.min())
