@@ -1,19 +1,22 @@
-"""Is the column model right for large flat contacts? The simulator against an exact elastic layer.
+"""The simulator's gel against the exact small-strain elastic layer, shape by shape.
 
     python -m experiments.layer_check --preset {smoke,quick,full} [--out DIR]
 
 Every shape is pressed at the pad centre, untilted, on mini-1 gel 1, at Fz = F and F + 1 N, twice: by
-`ffjax.sim.press` (independent neo-Hookean columns, a thickness-scaled smoothing and a rim) and by
-`ffjax.sim.elastic_layer` (small-strain, incompressible, bonded to the glass, frictionless: the textbook
-problem, solved on a grid with a margin of several thicknesses around the pad). Per shape and Fz:
+`ffjax.sim.press` (what makes the data: the layer solved on its ~0.25 mm grid, with local large-strain
+stiffening, rendered with the body's detail; until issue 13, independent neo-Hookean columns with a
+smoothing kernel) and by `ffjax.sim.elastic_layer` alone (small-strain, incompressible, bonded to the
+glass, frictionless: the textbook problem, solved on the finer check grid with a margin of several
+thicknesses around the pad). Per shape and Fz:
 - approach delta and contact area: the stiffness each model gives;
 - the pressure's shape in the reference (edge / centre ratio: > 1 edge-loaded, < 1 domed; the columns
   give ~1 for a flat face);
 - the free surface around the contact: mean depression in a 1 mm band outside it and the largest bulge,
-  both relative to delta (what the columns' smoothing stands in for);
+  both relative to delta;
 - the image each surface makes through the same optics (mini-1's LEDs, no noise): RMS change per newton
   at the grid and at the training size. That is what a network reads Fz from, so it is the number that says
-  whether the simulator keeps or erases the cue.
+  whether the simulator keeps or erases the cue. Expected differences now: the stiffening at large strain
+  (small, sharp bodies at high load) and the coarser solve grid.
 Writes OUT/results.json, layer_check.md and layer_check.png (cross-sections and the per-shape ratios).
 """
 
@@ -188,11 +191,12 @@ def report_md(r: dict) -> str:
                          f"{w['sens_grid_sim']:.2f} / {w['sens_grid_ref']:.2f}",
                          f"{w['sens_train_sim']:.2f} / {w['sens_train_ref']:.2f}"])
     g = r["gel"]
-    return (f"# Column model against an elastic layer ({r['preset']}, {r['sensor']}, commit {r['commit'][:12]})\n\n"
+    return (f"# Simulator against the exact elastic layer ({r['preset']}, {r['sensor']}, commit {r['commit'][:12]})\n\n"
             f"Gel {g['thickness_mm']} mm, E {g['young_mpa']} MPa, G {g['shear_mpa']} MPa. Centre presses, untilted; "
             f"grid {r['grid']} (reference margin {r['margin_thicknesses']:g} thicknesses), images at the grid and "
-            f"at the training size {r['train_size']}. sim = ffjax.sim.press (columns + smoothing); ref = "
-            "ffjax.sim.elastic_layer (incompressible bonded layer, small strain, frictionless). Band sink: mean "
+            f"at the training size {r['train_size']}. sim = ffjax.sim.press (the layer on its solve grid with "
+            "large-strain stiffening); ref = ffjax.sim.elastic_layer (incompressible bonded layer, small strain, "
+            "frictionless). Band sink: mean "
             f"surface depression within {r['band_mm']:g} mm outside the contact over the approach; bulge: "
             "highest rise outside the contact over the approach. Image change: RMS difference of the noiseless "
             f"frames at Fz and Fz + {r['df_n']:g} N, per newton (8-bit levels).\n\n" + common.md_table(header, rows))
@@ -209,8 +213,9 @@ def plot(r: dict, path: Path) -> Path:
     for ax, s in zip(axes[0], shown):
         v = r["shapes"][s]
         w = v["rows"][-1]
-        ax.plot(v["x_mm"], -np.asarray(w["profile_sim"]), label="simulator (columns)", color="tab:blue")
-        ax.plot(v["x_mm"], -np.asarray(w["profile_ref"]), label="elastic layer", color="tab:orange", ls="--")
+        ax.plot(v["x_mm"], -np.asarray(w["profile_sim"]), label="simulator", color="tab:blue")
+        ax.plot(v["x_mm"], -np.asarray(w["profile_ref"]), label="elastic layer (exact, small strain)",
+                color="tab:orange", ls="--")
         ax.set_title(f"{s.replace('_', ' ')}, Fz {w['fz']:g} N", fontsize=10)
         ax.set_xlabel("x across the pad centre (mm)")
         ax.set_ylabel("gel surface height (mm)")
@@ -247,7 +252,7 @@ def plot(r: dict, path: Path) -> Path:
         a.grid(True, alpha=0.3)
     for a in axes[1][2:]:
         a.axis("off")
-    fig.suptitle(f"Column model against an incompressible elastic layer ({r['sensor']}, {r['preset']})")
+    fig.suptitle(f"Simulator against the exact incompressible elastic layer ({r['sensor']}, {r['preset']})")
     return save_png(fig, path)
 
 

@@ -22,24 +22,39 @@ def test_zero_force_is_background_and_flat():
     assert np.array_equal(noisy.background, sim.get_sensor("mini-1").background(SIZE))
 
 
-def test_normal_force_monotone_in_penetration():
-    h = sim.body_heights(sim.get_shape("cone"), sim.get_sensor("mini-1"), (60, 80), 0, 0, 0, (0, 0))
-    f = [mechanics.normal_force(h, d, 0.25**2, 0.44, 4.5) for d in np.linspace(0, 3.5, 30)]
-    assert f[0] == 0 and np.all(np.diff(f) > 0)
+def test_stiffening_is_the_inverse_pair_and_linear_at_small_strain():
+    u = np.linspace(-0.5, 4.0, 50)
+    assert np.allclose(mechanics.soften(mechanics.stiffen(u, 4.5), 4.5), u, atol=1e-4)
+    assert mechanics.stiffen(0.045, 4.5) == pytest.approx(0.045, rel=0.02)  # 1% strain: linear
+    assert mechanics.stiffen(2.25, 4.5) > 2 * 2.25  # half the thickness: the column has stiffened
+
+
+def test_more_force_presses_deeper():
     pens = [sim.press("sphere_small", "mini-1", force=(0, 0, fz), size=SIZE).meta["penetration_mm"]
             for fz in (0.5, 2, 5, 10, 15)]
     assert np.all(np.diff(pens) > 0)
 
 
-def test_solved_penetration_gives_requested_force():
+def test_solved_pressure_carries_the_requested_force_and_touches_only_the_body():
     sensor = sim.get_sensor("mini-2", gel=2)
-    s = sim.press("cross", sensor, force=(0, 0, 7.0), size=SIZE)
-    size = (120, 160)
+    size = (60, 80)
     dy, dx = sensor.mm_per_px(size)
-    h = sim.body_heights(sim.get_shape("cross"), sensor, size, 0, 0, 0, (0, 0))
-    delta = h.min() + s.meta["penetration_mm"]
-    fz = mechanics.normal_force(h, delta, dx * dy, sensor.gel.young_mpa, sensor.gel.thickness_mm)
-    assert fz == pytest.approx(7.0, rel=0.02)
+    h = sim.body_heights(sim.get_shape("cross"), sensor, size, 0, 0, 0, (0, 0)).astype(np.float64)
+    n = mechanics.solve_normal(h, (dx + dy) / 2, sensor.gel.shear_mpa, sensor.gel.thickness_mm, 7.0)
+    assert n.pressure.sum() * dx * dy == pytest.approx(7.0, rel=1e-3)
+    assert n.pressure.min() >= 0 and not n.pressure[~n.contact].any()
+    gap = h - h.min() - (n.delta - n.surface)  # body above the gel surface: >= 0, ~0 in the contact
+    assert gap.min() > -1e-3 and np.abs(gap[n.contact]).max() < 0.02
+    assert n.surface.min() < -0.01  # the displaced volume rises beside the contact
+
+
+def test_wide_flat_face_is_stiffer_than_a_narrow_one():
+    """A bonded incompressible layer stiffens as the contact widens against its thickness: at equal force
+    an 18 mm flat face sinks less than a third as far as a 5 mm one (columns alone give the area ratio
+    only through their pressure law)."""
+    narrow = sim.press(sim.shapes.flat_punch(5.0), "mini-1", force=(0, 0, 4.0), size=SIZE, noise=False)
+    wide = sim.press(sim.shapes.flat_punch(18.0), "mini-1", force=(0, 0, 4.0), size=SIZE, noise=False)
+    assert wide.meta["penetration_mm"] < narrow.meta["penetration_mm"] / 3
 
 
 def _symmetric_sensor():

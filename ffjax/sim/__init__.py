@@ -8,23 +8,25 @@
     batch = sim.press_batch(shape, sensor, forces, x_mm, y_mm, yaw_deg, tilt_deg, seeds, size)  # dataset path
     sim.benchmark(size=(48, 64), n=400)           # samples/minute on this machine
 
-Pipeline: shape height field (shapes.py) posed on the pad -> penetration solved for the requested Fz with a
-thin-layer (Winkler, strain-stiffening) gel -> gel surface smoothed with a thickness-scaled kernel, shear
-stick displacement with a Coulomb cap, bulge in front (mechanics.py) -> Lambertian LED shading, pigment
-and markers warped by shear, vignetting, blur, noise (optics.py). Sensors and gels: sensors.py.
+Pipeline: shape height field (shapes.py) posed on the pad -> contact pressure, approach and gel surface
+solved for the requested Fz on an incompressible elastic layer bonded to the glass (elastic_layer.py),
+with local large-strain stiffening (mechanics.py) -> shear stick displacement with a Coulomb cap, bulge in
+front -> Lambertian LED shading, pigment and markers warped by shear, vignetting, blur, noise (optics.py).
+Sensors and gels: sensors.py.
 
 Conventions: x right (image columns), y down (rows), origin at the pad centre, mm; depth in mm, + = into
 the gel, - = bulge; force in N, +Fx drags the gel towards +x. `size` changes the pixel count, never the
-field of view. The force solve always runs on a fixed half-native grid, so the force-depth relation does not
-depend on the render size. Noise: `sensor.background(size)` is one fixed recorded frame (its noise seeded by
-the sensor's name); every pressed frame gets independent camera noise from its own `seed`; noise=False
-renders noiseless frames (then a zero-force frame equals `sensor.background(size, noise=False)` exactly).
+field of view. The force solve always runs on a fixed quarter-native grid (~0.25 mm), so the force-depth
+relation does not depend on the render size. Noise: `sensor.background(size)` is one fixed recorded
+frame (its noise seeded by the sensor's name); every pressed frame gets independent camera noise from its
+own `seed`; noise=False renders noiseless frames (then a zero-force frame equals
+`sensor.background(size, noise=False)` exactly).
 Fast path: `press_batch` shares per-(sensor, size) lighting/albedo tables and per-shape map pyramids
 (all cached), and shades only the window where the gel moved; parallelize across processes by shard.
 
 Left out, on purpose:
-- FEM: the gel is independent columns (Winkler) plus a smoothing kernel, so far-field coupling, exact
-  contact pressure shapes and the Hertz/thin-layer crossover are approximate.
+- FEM: the layer is linear-elastic with a pointwise (uniaxial) large-strain correction, frictionless in the
+  normal solve, and unbounded (a real pad ends at its frame); exact at small strain, approximate beyond.
 - Dynamics: every press is quasi-static; no rate dependence, vibration, or motion blur.
 - Hysteresis: loading and unloading give the same frame (no viscoelasticity, creep or gel ageing).
 - Shadows: LEDs light every surface point they face; self-occlusion by deep indentations is ignored.

@@ -1,9 +1,10 @@
-"""Reference contact mechanics for checking the column model: a linear-elastic, incompressible layer
-(nu = 0.5, shear modulus G, thickness t) bonded to a rigid base, pressed by a rigid frictionless body.
+"""Contact mechanics of a linear-elastic, incompressible layer (nu = 0.5, shear modulus G, thickness t)
+bonded to a rigid base, pressed by a rigid frictionless body.
 
-Not used to make data: it is the yardstick for `ffjax.sim.mechanics` (experiments.layer_check). It solves
-the exact small-strain problem on a grid, so it has what independent columns lack: pressure concentrated
-at a flat punch's edges when the contact is small against t (half-space, p ~ 1/sqrt(a^2 - r^2)), a
+The simulator's normal solve (`ffjax.sim.mechanics.solve_normal` adds large-strain stiffening and the pad's
+grid) and, at a finer grid, the yardstick of experiments.layer_check. It solves the exact small-strain
+problem on a grid, so it has what independent columns (the simulator's model before issue 13) lack:
+pressure concentrated at a flat punch's edges when the contact is small against t (half-space, p ~ 1/sqrt(a^2 - r^2)), a
 pressure dome and strong stiffening when it is large against t (the squeezed layer must flow out
 sideways, F = 3 pi G delta a^4 / (8 t^3) for a disc), and the free surface around the contact dragged down
 and pushed up by the layer's volume. It has no large-strain stiffening (the columns' neo-Hookean law has),
@@ -54,10 +55,12 @@ class Layer:
         return np.fft.irfft2(self.kernel * np.fft.rfft2(p), s=self.shape)
 
 
-def solve_contact(h: np.ndarray, layer: Layer, force_n: float, tol: float = 1e-7, max_iter: int = 2000) -> dict:
+def solve_contact(h: np.ndarray, layer: Layer, force_n: float, tol: float = 1e-7, max_iter: int = 2000,
+                  p0: np.ndarray | None = None) -> dict:
     """Pressure under a rigid frictionless body with heights h (mm above its lowest point; >= FAR/2 = no
     body) carrying force_n (N). Returns p (MPa), u (surface displacement, mm), delta (approach, mm, from
-    the first touch), contact (bool), iterations and the final relative pressure change."""
+    the first touch), contact (bool), iterations and the final relative pressure change. p0: a starting
+    pressure (e.g. the solution of a nearby problem); uniform over the body if None."""
     if h.shape != layer.shape:
         raise ValueError(f"height map {h.shape} does not match the layer grid {layer.shape}")
     if not force_n > 0:
@@ -65,7 +68,10 @@ def solve_contact(h: np.ndarray, layer: Layer, force_n: float, tol: float = 1e-7
     cell = layer.dx**2
     h = np.asarray(h, dtype=np.float64) - float(h.min())
     body = h < FAR / 2
-    p = np.where(body, force_n / (body.sum() * cell), 0.0)
+    if p0 is not None and (p0 * body).sum() > 0:
+        p = np.where(body, p0, 0.0) * (force_n / ((p0 * body).sum() * cell))
+    else:
+        p = np.where(body, force_n / (body.sum() * cell), 0.0)
     t = np.zeros_like(p)
     g_old, conj, change, it = 1.0, False, np.inf, 0
     while it < max_iter:

@@ -1,11 +1,14 @@
-"""Contact mechanics of a thin gel layer on glass: penetration -> pressure, normal force, gel surface, shear.
+"""Contact mechanics of a thin gel layer on glass: requested Fz -> approach, pressure, gel surface, shear.
 
-- Normal: each gel column under the body is compressed by d = max(0, delta - h). Its pressure is the
-  uniaxial neo-Hookean law p = (E/3) (1/lam^2 - lam), lam = 1 - d/t: Winkler p = (E/t) d at small
-  strain, stiffening as the column is squeezed towards the glass (so every body reaches 15 N before
-  bottoming out). Fz = sum(p) * pixel area; delta is solved for the requested Fz (Newton, monotone).
-- Surface: the gel surface is d smoothed by a kernel scaled with the thickness (Taxim's idea), never
-  below the body, with a shallow rim from incompressibility.
+- Normal: the gel is an incompressible elastic layer bonded to the glass (`ffjax.sim.elastic_layer`: exact
+  small-strain compliance, Polonsky-Keer contact solve on a grid with a margin of SOLVE_MARGIN_T
+  thicknesses around the pad). So a flat face loads its edges when small against the thickness and the
+  layer stiffens strongly when the contact is wide against it (the gel must flow out sideways), and the
+  free surface around the contact is dragged down and pushed up by the displaced volume. Large strain:
+  the layer's linear displacement v is mapped pointwise through the uniaxial neo-Hookean law
+  v / t = psi(u / t), psi(e) = ((1 - e)^-2 - (1 - e)) / 3, so a column squeezed towards the glass
+  stiffens (psi(e) = e + e^2 + ...) and every body reaches 15 N before bottoming out. This is an
+  approximation: the stiffening is local, the layer coupling linear.
 - Shear: stick displacement s = F_t / k_t, k_t = G (A/t + 16 a / 3) (thin layer + Mindlin's 8 G a / (2 - nu)
   at nu = 0.5 for contacts smaller than the layer), capped by Coulomb |F_t| <= mu Fz (slip flag). The
   tangential field decays away from the contact; incompressibility raises a bulge in front.
@@ -14,69 +17,92 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import cv2
 import numpy as np
 
-MAX_STRAIN = 0.9  # presses needing a deeper column strain than this are refused (gel would bottom out)
-SMOOTH_FRAC = 0.3  # gel-surface smoothing sigma = SMOOTH_FRAC * thickness
-RIM_FRAC = 0.12  # rim height relative to the wide-smoothed penetration
+from ffjax.sim import elastic_layer
+
+MAX_STRAIN = 0.9  # presses needing a deeper compression than this x thickness are refused (gel bottoms out)
+SOLVE_MARGIN_T = 2.0  # layer beyond the pad in the solve, x thickness: its response decays over ~t
 SHEAR_DECAY_FRAC = 0.5  # decay length of the tangential field outside the contact, x thickness
 BULGE_FRAC = 0.5  # part of the displaced volume that rises as a bulge (the rest spreads in the layer)
-_BINS = 2048
+_EPS = np.linspace(0.0, 0.98, 4096)  # compressive strain table for psi and its inverse
+_PSI = ((1.0 - _EPS) ** -2 - (1.0 - _EPS)) / 3.0
+_OUTER_TOL = 1e-4  # fixed point on the approach: stop when it moves less than this x thickness
 
 
-def pressure(d, young: float, thickness: float):
-    """Column pressure (MPa = N/mm^2) at compression d (mm)."""
-    lam = 1.0 - np.asarray(d) / thickness
-    return young / 3.0 * (1.0 / lam**2 - lam)
+def stiffen(u, thickness: float):
+    """Linear-layer displacement that carries the load of a real compression u (mm): t psi(u / t);
+    identity for u <= 0 (the gel rising), as psi'(0) = 1."""
+    u = np.asarray(u, dtype=np.float64)
+    return np.where(u <= 0, u, thickness * np.interp(u / thickness, _EPS, _PSI, right=np.inf))
 
 
-def _dpressure(d, young: float, thickness: float):
-    lam = 1.0 - np.asarray(d) / thickness
-    return young / 3.0 * (2.0 / lam**3 + 1.0) / thickness
+def soften(v, thickness: float):
+    """Inverse of `stiffen`: the real compression (mm) for a linear-layer displacement v."""
+    v = np.asarray(v, dtype=np.float64)
+    return np.where(v <= 0, v, thickness * np.interp(v / thickness, _PSI, _EPS))
 
 
-def normal_force(h: np.ndarray, delta: float, cell_area: float, young: float, thickness: float) -> float:
-    """Fz (N) for body heights h (mm) on a grid of cell_area (mm^2) pushed in by delta (mm)."""
-    d = np.clip(delta - h, 0, None)
-    return float(pressure(d, young, thickness).sum() * cell_area)
+def _fast_len(n: int) -> int:
+    """The smallest 5-smooth integer >= n (FFT sizes with only factors 2, 3, 5 are the fast ones)."""
+    while True:
+        k = n
+        for f in (2, 3, 5):
+            while k % f == 0:
+                k //= f
+        if k == 1:
+            return n
+        n += 1
 
 
-def solve_delta(h: np.ndarray, cell_area: float, young: float, thickness: float, fz: float) -> float:
-    """Approach delta (mm) at which the body (heights h over the pad) carries Fz; ValueError if the gel
-    would have to be compressed past MAX_STRAIN of its thickness."""
-    hmin = float(h.min())
-    if fz <= 0:
-        return hmin
-    dmax = MAX_STRAIN * thickness
-    bw = dmax / _BINS
-    rel = (h.ravel() - hmin) / bw
-    rel = rel[rel < _BINS]
-    counts = np.bincount(rel.astype(np.int64), minlength=_BINS)[:_BINS].astype(np.float64)
-    hb = (np.arange(_BINS) + 0.5) * bw  # bin centres above hmin
-    nz = counts > 0
-    counts, hb = counts[nz], hb[nz]
+@functools.lru_cache(maxsize=16)
+def _layer(shape: tuple[int, int], dx: float, thickness: float, shear_mpa: float) -> elastic_layer.Layer:
+    return elastic_layer.Layer(shape, dx, thickness, shear_mpa)
 
-    def f_and_df(pen):
-        d = np.clip(pen - hb, 0, None)
-        on = d > 0
-        return (float((counts * pressure(d, young, thickness)).sum() * cell_area),
-                float((counts[on] * _dpressure(d[on], young, thickness)).sum() * cell_area))
 
-    pen = dmax
-    f, df = f_and_df(pen)
-    if f < fz:
-        raise ValueError(
-            f"Fz={fz:.3g} N is beyond what this gel takes for this body and pose: at {MAX_STRAIN:.0%} of the "
-            f"{thickness} mm gel thickness it carries only {f:.3g} N")
-    for _ in range(60):  # Newton from the right on a convex increasing F: monotone, no overshoot
-        step = (f - fz) / max(df, 1e-12)
-        pen = max(pen - step, 0.0)
-        f, df = f_and_df(pen)
-        if abs(f - fz) <= 1e-6 * fz or step < 1e-9:
+@dataclasses.dataclass
+class Normal:
+    delta: float  # approach (mm) from the first touch: the deepest compression
+    surface: np.ndarray  # (H, W) gel surface displacement on the pad grid, mm (+ = into the gel)
+    contact: np.ndarray  # (H, W) bool
+    pressure: np.ndarray  # (H, W) MPa
+
+
+def solve_normal(h: np.ndarray, mm_per_px: float, shear_mpa: float, thickness: float, fz: float) -> Normal:
+    """The layer's response to a rigid frictionless body of heights h (mm over the pad grid; >= FAR/2 = no
+    body) pressed until it carries Fz (N). ValueError if the gel would be compressed past MAX_STRAIN."""
+    H, W = h.shape
+    body_pad = h < elastic_layer.FAR / 2
+    if fz <= 0 or not body_pad.any():
+        zero = np.zeros((H, W))
+        return Normal(0.0, zero, zero.astype(bool), zero)
+    m = int(np.ceil(SOLVE_MARGIN_T * thickness / mm_per_px))
+    hb = np.full((_fast_len(H + 2 * m), _fast_len(W + 2 * m)), elastic_layer.FAR)  # extra margin: fast FFT
+    hb[m:m + H, m:m + W] = np.where(body_pad, h - float(h[body_pad].min()), elastic_layer.FAR)
+    body = hb < elastic_layer.FAR / 2
+    layer = _layer(hb.shape, float(mm_per_px), float(thickness), float(shear_mpa))
+    target, delta, p = hb, None, None
+    for _ in range(30):  # fixed point on the approach: the stiffened target depends on it
+        r = elastic_layer.solve_contact(target, layer, fz, tol=1e-6, p0=p)
+        p = r["p"]
+        on = r["contact"]
+        new = float(np.mean(hb[on] + soften(r["u"][on], thickness)))
+        done = delta is not None and abs(new - delta) < _OUTER_TOL * thickness
+        delta = new
+        if done:
             break
-    return hmin + pen
+        target = np.where(body, -stiffen(np.minimum(delta, _EPS[-1] * thickness) - hb, thickness),
+                          elastic_layer.FAR)
+    if delta > MAX_STRAIN * thickness:
+        raise ValueError(
+            f"Fz={fz:.3g} N is beyond what this gel takes for this body and pose: it would compress the "
+            f"{thickness} mm gel past {MAX_STRAIN:.0%} of its thickness")
+    inner = (slice(m, m + H), slice(m, m + W))
+    surface = np.maximum(soften(r["u"], thickness), delta - hb)[inner]  # never inside the body
+    return Normal(delta, surface, r["contact"][inner], r["p"][inner])
 
 
 def smooth(x: np.ndarray, sigma_px: float) -> np.ndarray:
@@ -93,14 +119,6 @@ def smooth(x: np.ndarray, sigma_px: float) -> np.ndarray:
     up = cv2.resize(small, (W, H), interpolation=cv2.INTER_LINEAR)
     # remove the bilinear kinks: their piecewise-constant slopes would show up as stripes in the shading
     return cv2.GaussianBlur(up, (0, 0), 0.6 * f, borderType=cv2.BORDER_REPLICATE)
-
-
-def gel_surface(d: np.ndarray, thickness: float, mm_per_px: float) -> np.ndarray:
-    """Gel surface displacement (mm, + = into the gel) from the column compression d (mm)."""
-    sig = SMOOTH_FRAC * thickness / mm_per_px
-    u = np.maximum(d, smooth(d, sig))
-    rim = RIM_FRAC * smooth(d, 2.5 * sig)
-    return np.maximum(d, u - rim)
 
 
 @dataclasses.dataclass
