@@ -61,13 +61,14 @@ def test_update_steps_and_saved_backbone(kind, tmp_path):
 
 
 def test_corpus_deterministic_and_free_of_evaluation_frames():
-    cfg = configs.get("smoke", {"pretrain.corpus_size": 20})
+    cfg = configs.get("smoke", {"pretrain.corpus_size": 80})  # two chunks of frames
     settings = corpus.corpus_settings(cfg)
-    a, meta = corpus.build(settings)
-    b, _ = corpus.build(settings)
+    a, meta = corpus.build(settings, workers=1)
+    b, meta_b = corpus.build(settings, workers=2)  # split over processes: the same corpus
     np.testing.assert_array_equal(a, b)
+    assert meta == meta_b
     S = cfg["data"]["input_size"]
-    assert a.shape == (20, S, S, 3) and a.dtype == np.uint8
+    assert a.shape == (80, S, S, 3) and a.dtype == np.uint8
     sim_frames = [f for k, f in zip(meta["kinds"], meta["frames"]) if k == "sim"]
     assert sim_frames and set(meta["kinds"]) - {"sim"}  # both halves present
     named = set(sim.INDENTERS) | set(sim.UNSEEN_OBJECTS)

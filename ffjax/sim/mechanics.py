@@ -58,7 +58,7 @@ def _fast_len(n: int) -> int:
         n += 1
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=64)  # the pretraining corpus cycles through 24 randomized gels
 def _layer(shape: tuple[int, int], dx: float, thickness: float, shear_mpa: float) -> elastic_layer.Layer:
     return elastic_layer.Layer(shape, dx, thickness, shear_mpa)
 

@@ -12,6 +12,7 @@ Deterministic from the seed (frame i uses its own generator seeded by (seed, i))
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import os
@@ -62,40 +63,75 @@ def load_or_build(cfg: dict, cache_dir: str | os.PathLike | None = None, progres
     return images, meta
 
 
-def build(settings: dict, progress: bool = False):
-    """Generate the corpus; meta records each frame's kind and (for sim frames) shape and sensor."""
+def build(settings: dict, progress: bool = False, workers: int | None = None):
+    """Generate the corpus; meta records each frame's kind and (for sim frames) shape and sensor. The sim
+    frames (~0.1 s each: the gel's contact solve) are spread over `workers` processes (default: the CPU
+    count, up to 8, when there are enough of them to pay for starting the processes); every frame has its
+    own generator, so the result does not depend on the split."""
     n, size = settings["size"], settings["input_size"]
     n_sim = int(round(n * settings["sim_fraction"]))
     sim_ok = _sim_available()
     if not sim_ok:
         n_sim = 0  # the simulator is optional here: fall back to procedural images only
+    if workers is None:
+        workers = min(os.cpu_count() or 1, 8) if n_sim >= 400 else 1
+    chunks = [(lo, min(lo + 64, n)) for lo in range(0, n, 64)]
     images = np.empty((n, size, size, 3), np.uint8)
-    kinds, frames = [], []
-    it = range(n)
+    kinds, frames = [None] * n, [None] * n
+    bar = None
     if progress:
         from tqdm import tqdm
 
-        it = tqdm(it, desc="corpus", unit="img")
-    sensors = sensor_pool(settings["seed"]) if n_sim else []
-    for i in it:
-        rng = np.random.default_rng([settings["seed"], VERSION, i])
-        frame = None
-        if i < n_sim:
-            frame, info = sim_frame(rng, settings, sensors[i % len(sensors)])
-        if frame is not None:
-            images[i] = frame
-            kinds.append("sim")
-            frames.append(info)
-        else:
-            kind = PROCEDURAL_KINDS[i % len(PROCEDURAL_KINDS)]
-            images[i] = procedural_image(kind, rng, size)
-            kinds.append(kind)
-            frames.append({})
+        bar = tqdm(total=n, desc="corpus", unit="img")
+    tasks = [(settings, n_sim, lo, hi) for lo, hi in chunks]
+    if workers <= 1:
+        results = map(_build_chunk, tasks)
+    else:
+        import concurrent.futures as cf
+        import multiprocessing
+
+        pool = cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+        results = pool.map(_build_chunk, tasks)
+    try:
+        for lo, imgs, chunk_kinds, chunk_frames in results:
+            images[lo:lo + len(imgs)] = imgs
+            kinds[lo:lo + len(imgs)], frames[lo:lo + len(imgs)] = chunk_kinds, chunk_frames
+            if bar is not None:
+                bar.update(len(imgs))
+    finally:
+        if workers > 1:
+            pool.shutdown(cancel_futures=True)
+        if bar is not None:
+            bar.close()
     # shuffle deterministically so any prefix mixes both halves
     order = np.random.default_rng([settings["seed"], VERSION, 1 << 31]).permutation(n)
     meta = {"settings": settings, "kinds": [kinds[j] for j in order], "frames": [frames[j] for j in order],
             "sim_available": sim_ok}
     return images[order], meta
+
+
+def _build_chunk(task):
+    """Frames [lo, hi) of the corpus: (lo, images, kinds, frame infos)."""
+    settings, n_sim, lo, hi = task
+    size = settings["input_size"]
+    sensors = _cached_pool(settings["seed"]) if lo < n_sim else []
+    images = np.empty((hi - lo, size, size, 3), np.uint8)
+    kinds, frames = [], []
+    for i in range(lo, hi):
+        rng = np.random.default_rng([settings["seed"], VERSION, i])
+        frame = None
+        if i < n_sim:
+            frame, info = sim_frame(rng, settings, sensors[i % len(sensors)])
+        if frame is not None:
+            images[i - lo] = frame
+            kinds.append("sim")
+            frames.append(info)
+        else:
+            kind = PROCEDURAL_KINDS[i % len(PROCEDURAL_KINDS)]
+            images[i - lo] = procedural_image(kind, rng, size)
+            kinds.append(kind)
+            frames.append({})
+    return lo, images, kinds, frames
 
 
 # ----------------------------------------------------------------------------- procedural images
@@ -262,6 +298,11 @@ def randomized_sensor(rng: np.random.Generator, index: int = 0):
         unevenness=float(rng.uniform(0.03, 0.1)),
         dome_radius_mm=float(rng.uniform(40, 100)) if rng.random() < 0.2 else None)
     return sensor
+
+
+@functools.lru_cache(maxsize=4)
+def _cached_pool(seed: int) -> tuple:
+    return tuple(sensor_pool(seed))
 
 
 def sensor_pool(seed: int, n: int = SENSOR_POOL) -> list:
