@@ -64,8 +64,8 @@ def factors(cfg: dict) -> tuple[Factor, ...]:
         Factor("drift", "background gain drift (fraction)", (0.0, 0.02, 0.05, 0.1, 0.15, 0.2), 0,
                "the background frame comes from the sensor in an earlier state (exposure gain +level, LEDs "
                "drifted by level/2) while the frame is from the current one"),
-        Factor("flat_size", "flat face side (mm)", FLAT_SIDES_MM, FLAT_SIDES_MM.index(7.0),
-               "a square flat punch made like the cube indenter (7 mm, the largest flat face in training), "
+        Factor("flat_size", "flat face side (mm)", FLAT_SIDES_MM, FLAT_SIDES_MM.index(14.0),
+               "a square flat punch made like the cube indenter (14 mm, the largest flat face in training), "
                "its side from 3 to 18 mm (the pad sees 20.3 x 15.2 mm), posed and loaded as the cube is"),
         Factor("tilt_shear", "tilt direction turned from the shear's (deg)", TILT_TURN_DEG, 0,
                "the training sampling, except that each body's tilt (same magnitude) is turned by the level away "
@@ -381,7 +381,7 @@ MECHANISM = {
     "drift": "a background from another sensor state leaves a uniform offset over the whole difference image, "
              "a pattern no training image had",
     "flat_size": "a flat face shows its load only along its outline (inside, the pressed gel stays flat and "
-                 "shades like the background), and faces larger than the training cube make contacts and "
+                 "shades like the background), and faces smaller or larger than the training cube make contacts and "
                  "stiffnesses no training press had",
     "tilt_shear": "in training the shear is Fz tan(tilt) plus noise, so the contact's tilted geometry (which side "
                   "presses deeper) predicts the shear as well as the gel's sideways strain does; a model that reads "

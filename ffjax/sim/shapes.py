@@ -183,13 +183,13 @@ def cross():  # two rounded bars 12 x 2.4 mm
     return np.minimum(bar(X, Y), bar(Y, X))
 
 
-def cube():  # 7 mm square face, knurled
-    return flat_punch(7.0).height
+def cube():  # 14 mm square face, knurled: a flat contact across most of the pad's short side (15.2 mm)
+    return flat_punch(14.0).height
 
 
 def flat_punch(side_mm: float) -> Shape:
     """A knurled square flat punch like the cube indenter (0.5 mm rounded rim) with any face size: the
-    contact-size factor of experiments.stability (the cube, 7 mm, is the largest flat face in training)."""
+    contact-size factor of experiments.stability (the cube, 14 mm, is the largest flat face in training)."""
     if not 0 < side_mm < 2 * _EXTENT_MM:
         raise ValueError(f"side_mm must be in (0, {2 * _EXTENT_MM}) mm, got {side_mm}")
     X, Y = _grid()
