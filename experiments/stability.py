@@ -33,6 +33,7 @@ N_LEVELS = {"smoke": 2}  # other presets: every level of each factor
 STREAM = 1000  # sampling stream / render seed block no dataset split uses (held out)
 SHEAR_N = 1.0  # |F_t| of the shear-angle sets, N
 FLAT_SIDES_MM = (3.0, 5.0, 7.0, 10.0, 14.0, 18.0)
+SPHERE_RADII_MM = (4.0, 10.0, 20.0, 30.0, 40.0)
 TILT_TURN_DEG = (0.0, 45.0, 90.0, 135.0, 180.0)
 
 
@@ -67,6 +68,9 @@ def factors(cfg: dict) -> tuple[Factor, ...]:
         Factor("flat_size", "flat face side (mm)", FLAT_SIDES_MM, FLAT_SIDES_MM.index(14.0),
                "a square flat punch made like the cube indenter (14 mm, the largest flat face in training), "
                "its side from 3 to 18 mm (the pad sees 20.3 x 15.2 mm), posed and loaded as the cube is"),
+        Factor("sphere_radius", "sphere radius (mm)", SPHERE_RADII_MM, SPHERE_RADII_MM.index(10.0),
+               "a smooth sphere like the sphere indenters (the big sphere, 10 mm, is the flattest curved body in "
+               "training), its radius from 4 to 40 mm (fruit are 20-37 mm), posed and loaded as the big sphere is"),
         Factor("tilt_shear", "tilt direction turned from the shear's (deg)", TILT_TURN_DEG, 0,
                "the training sampling, except that each body's tilt (same magnitude) is turned by the level away "
                "from its shear's direction: at 0 the tool pushes along its tilted axis as in training; otherwise "
@@ -117,13 +121,17 @@ def presses(cfg: dict, f: Factor, li: int, n: int, sensor) -> dict:
     levels of noise, illumination and drift are the very same test set."""
     from ffjax import sim
     from ffjax.sim import dataset
-    from ffjax.sim.shapes import flat_punch
+    from ffjax.sim.shapes import flat_punch, sphere
 
     level, fz_max = f.levels[li], float(cfg["data"]["fz_max"])
     if f.name == "flat_size":  # the cube's poses and loads, pressed with a flat face of another size
         spec = dataset.SplitSpec("stability", SENSOR, ("cube",), n, STREAM)
         p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
         return {"shapes": (flat_punch(level),), **p}
+    if f.name == "sphere_radius":  # the big sphere's poses and loads, pressed with a sphere of another radius
+        spec = dataset.SplitSpec("stability", SENSOR, (dataset.CALIB_SHAPE,), n, STREAM)
+        p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
+        return {"shapes": (sphere(level),), **p}
     shapes = tuple(s for s in sim.INDENTERS if s != dataset.CALIB_SHAPE)
     spec = dataset.SplitSpec("stability", SENSOR, shapes, math.ceil(n / len(shapes)), STREAM)
     p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
@@ -383,6 +391,9 @@ MECHANISM = {
     "flat_size": "a flat face shows its load only along its outline (inside, the pressed gel stays flat and "
                  "shades like the background), and faces smaller or larger than the training cube make contacts and "
                  "stiffnesses no training press had",
+    "sphere_radius": "at a given load a flatter body makes a wider, shallower contact, and in a bonded layer the "
+                     "stiffness grows steeply with the contact's width against the thickness, so spheres flatter "
+                     "than the big sphere press contacts and depth-load relations no training press had",
     "tilt_shear": "in training the shear is Fz tan(tilt) plus noise, so the contact's tilted geometry (which side "
                   "presses deeper) predicts the shear as well as the gel's sideways strain does; a model that reads "
                   "the tilt cue predicts the shear along the lean, and its shear error grows as the lean turns away "

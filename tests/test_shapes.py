@@ -58,3 +58,12 @@ def test_from_mesh(tmp_path):
     assert shape.height[H // 2, W // 2 + 20] == pytest.approx(5 - np.sqrt(25 - 4), abs=0.1)
     s = sim.press(shape, "mini-1", force=(0, 0, 3), size=(24, 32))
     assert s.depth.max() > 0.1
+
+
+def test_sphere_builder_is_the_big_sphere_at_10mm():
+    from ffjax.sim.shapes import sphere
+
+    assert np.array_equal(sphere(10.0).height, sim.get_shape("sphere_big").height)
+    assert sphere(30.0).height.min() == 0 and sphere(30.0).name == "sphere_30mm"
+    with pytest.raises(ValueError, match="radius_mm"):
+        sphere(0.0)

@@ -198,6 +198,15 @@ def flat_punch(side_mm: float) -> Shape:
     return Shape(_rounded(d, 0.5) + knurl, MAP_MM_PER_PX, name=f"flat_punch_{side_mm:g}mm", kind="user")
 
 
+def sphere(radius_mm: float) -> Shape:
+    """A smooth sphere like the sphere indenters with any radius: the curvature factor of
+    experiments.stability (the big sphere, 10 mm, is the flattest curved indenter in training)."""
+    if not 0 < radius_mm <= 100:
+        raise ValueError(f"radius_mm must be in (0, 100] mm, got {radius_mm}")
+    X, Y = _grid()
+    return Shape(_cap(X**2 + Y**2, radius_mm), MAP_MM_PER_PX, name=f"sphere_{radius_mm:g}mm", kind="user")
+
+
 def prism_edge():  # 110-degree wedge, edge rounded 0.3 mm, 12 mm long
     X, Y = _grid()
     cot = 1 / np.tan(np.radians(55))
