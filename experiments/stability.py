@@ -68,8 +68,8 @@ def factors(cfg: dict) -> tuple[Factor, ...]:
         Factor("flat_size", "flat face side (mm)", FLAT_SIDES_MM, FLAT_SIDES_MM.index(14.0),
                "a square flat punch made like the cube indenter (14 mm, the largest flat face in training), "
                "its side from 3 to 18 mm (the pad sees 20.3 x 15.2 mm), posed and loaded as the cube is"),
-        Factor("sphere_radius", "sphere radius (mm)", SPHERE_RADII_MM, SPHERE_RADII_MM.index(10.0),
-               "a smooth sphere like the sphere indenters (the big sphere, 10 mm, is the flattest curved body in "
+        Factor("sphere_radius", "sphere radius (mm)", SPHERE_RADII_MM, SPHERE_RADII_MM.index(40.0),
+               "a smooth sphere like the sphere indenters (the big sphere, 40 mm, is the flattest curved body in "
                "training), its radius from 4 to 40 mm (fruit are 20-37 mm), posed and loaded as the big sphere is"),
         Factor("tilt_shear", "tilt direction turned from the shear's (deg)", TILT_TURN_DEG, 0,
                "the training sampling, except that each body's tilt (same magnitude) is turned by the level away "
@@ -393,7 +393,7 @@ MECHANISM = {
                  "stiffnesses no training press had",
     "sphere_radius": "at a given load a flatter body makes a wider, shallower contact, and in a bonded layer the "
                      "stiffness grows steeply with the contact's width against the thickness, so spheres flatter "
-                     "than the big sphere press contacts and depth-load relations no training press had",
+                     "than the training bodies press contacts and depth-load relations no training press had",
     "tilt_shear": "in training the shear is Fz tan(tilt) plus noise, so the contact's tilted geometry (which side "
                   "presses deeper) predicts the shear as well as the gel's sideways strain does; a model that reads "
                   "the tilt cue predicts the shear along the lean, and its shear error grows as the lean turns away "

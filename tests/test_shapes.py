@@ -37,7 +37,7 @@ def test_from_heightmap_matches_sphere():
     h = np.where(r2 < 100, 10 - np.sqrt(np.maximum(100 - r2, 0)), np.nan)
     mine = sim.Shape.from_heightmap(h + 3.0, mpp, name="mine")  # offset is removed
     a = sim.press(mine, "mini-1", force=(0, 0, 5), size=(24, 32))
-    b = sim.press("sphere_big", "mini-1", force=(0, 0, 5), size=(24, 32))
+    b = sim.press(sim.shapes.sphere(10.0), "mini-1", force=(0, 0, 5), size=(24, 32))
     assert a.meta["shape"] == "mine"
     assert a.meta["penetration_mm"] == pytest.approx(b.meta["penetration_mm"], rel=0.02)
     with pytest.raises(ValueError):
@@ -60,10 +60,10 @@ def test_from_mesh(tmp_path):
     assert s.depth.max() > 0.1
 
 
-def test_sphere_builder_is_the_big_sphere_at_10mm():
+def test_sphere_builder_is_the_big_sphere_at_40mm():
     from ffjax.sim.shapes import sphere
 
-    assert np.array_equal(sphere(10.0).height, sim.get_shape("sphere_big").height)
+    assert np.array_equal(sphere(40.0).height, sim.get_shape("sphere_big").height)
     assert sphere(30.0).height.min() == 0 and sphere(30.0).name == "sphere_30mm"
     with pytest.raises(ValueError, match="radius_mm"):
         sphere(0.0)

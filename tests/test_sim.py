@@ -127,8 +127,8 @@ def test_sensors_differ():
     bgs = [sim.get_sensor(k).background(SIZE, noise=False).astype(int) for k in ("mini-1", "mini-2", "mini-3")]
     assert all(np.abs(a - b).mean() > 2 for i, a in enumerate(bgs) for b in bgs[i + 1:])
     g1, g3 = sim.get_sensor("mini-1", 1), sim.get_sensor("mini-1", 3)
-    p1 = sim.press("sphere_big", g1, force=(0, 0, 5), size=SIZE).meta["penetration_mm"]
-    p3 = sim.press("sphere_big", g3, force=(0, 0, 5), size=SIZE).meta["penetration_mm"]
+    p1 = sim.press("sphere_small", g1, force=(0, 0, 5), size=SIZE).meta["penetration_mm"]
+    p3 = sim.press("sphere_small", g3, force=(0, 0, 5), size=SIZE).meta["penetration_mm"]
     assert p1 != pytest.approx(p3, rel=0.02)
     assert sim.get_sensor("digit").native_size == (320, 240)
     assert len(sim.SENSORS) == len(sim.SENSOR_NAMES) == 10

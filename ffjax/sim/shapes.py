@@ -147,9 +147,9 @@ def _fbm(shape, sigma_px, seed):
     return n / (n.std() + 1e-9)
 
 
-def sphere_big():
+def sphere_big():  # radius 40 mm: its 15 N contact reaches a/t ~ 1.6 on the 4.5 mm gel, like the cube's face
     X, Y = _grid()
-    return _cap(X**2 + Y**2, 10.0)
+    return _cap(X**2 + Y**2, 40.0)
 
 
 def sphere_small():
@@ -200,7 +200,7 @@ def flat_punch(side_mm: float) -> Shape:
 
 def sphere(radius_mm: float) -> Shape:
     """A smooth sphere like the sphere indenters with any radius: the curvature factor of
-    experiments.stability (the big sphere, 10 mm, is the flattest curved indenter in training)."""
+    experiments.stability (the big sphere, 40 mm, is the flattest curved indenter in training)."""
     if not 0 < radius_mm <= 100:
         raise ValueError(f"radius_mm must be in (0, 100] mm, got {radius_mm}")
     X, Y = _grid()
