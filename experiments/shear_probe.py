@@ -24,7 +24,8 @@ from unittest import mock
 import cv2
 import numpy as np
 
-SHAPES = ("sphere_big", "sphere_small", "cylinder", "cube", "ring")
+# a compact round contact for the sign check: the big sphere (40 mm) presses a wide, nearly flat patch
+SHAPES = ("sphere_10mm", "sphere_small", "cylinder", "cube", "ring")
 FZ, FT = 5.0, 1.0  # N: matched presses differ only in the direction of a 1 N shear
 
 
@@ -62,8 +63,10 @@ def _inputs(sensor, shape, force, size, input_size):
     """Preprocessed noiseless frame and the crop that drops the square padding."""
     from ffjax import sim
     from ffjax.data import preprocess
+    from ffjax.sim.shapes import sphere
 
-    s = sim.press(shape, sensor, force, size=size, noise=False)
+    body = sphere(10.0) if shape == "sphere_10mm" else shape
+    s = sim.press(body, sensor, force, size=size, noise=False)
     x = preprocess.to_unit(s.image, s.background, input_size)
     h, w = size
     pad = abs(w - h) * input_size // max(h, w) // 2
@@ -117,8 +120,8 @@ def physics() -> dict:
                 r = matched(led_variant(key, leds), shape)
                 rows.append({"sensor": key, "leds": leds, "source": source, "shape": shape, **r})
     # native resolution: the pipeline's downsampling is not the cause
-    r = matched("mini-1-gel1", "sphere_big", size=(240, 320), input_size=320)
-    rows.append({"sensor": "mini-1-gel1", "leds": "as built (native 240x320)", "source": "all", "shape": "sphere_big",
+    r = matched("mini-1-gel1", "sphere_10mm", size=(240, 320), input_size=320)
+    rows.append({"sensor": "mini-1-gel1", "leds": "as built (native 240x320)", "source": "all", "shape": "sphere_10mm",
                  **r})
     # the global shift estimate is meaningful for the smooth spheres (one blob); flat faces and rings shade
     # their edges in ways a single translation does not describe, so the check uses the spheres

@@ -48,10 +48,11 @@ def test_label_axis_and_sign_match_the_image(key):
     size = render_size(sensor, (48, 64))
     dy, dx = sensor.mm_per_px(size)
     assert dy == pytest.approx(dx, rel=1e-6)  # square pixels: padding then resizing squashes neither axis
-    s0 = sim.press("sphere_big", sensor, (0, 0, FZ), size=size, noise=False)
+    ball = sim.shapes.sphere(10.0)  # a compact round contact (the big sphere, 40 mm, presses a wide flat patch)
+    s0 = sim.press(ball, sensor, (0, 0, FZ), size=size, noise=False)
     x0 = _unpadded(preprocess.to_unit(s0.image, s0.background, 64), size)
     for f, axis in (((1.0, 0.0), 0), ((-1.0, 0.0), 0), ((0.0, 1.0), 1), ((0.0, -1.0), 1)):
-        s = sim.press("sphere_big", sensor, (*f, FZ), size=size, noise=False)
+        s = sim.press(ball, sensor, (*f, FZ), size=size, noise=False)
         sign = np.sign(f[axis])
         np.testing.assert_allclose(s.force, [*f, FZ], atol=1e-6)  # the label is the applied force, (Fx, Fy, Fz)
         assert np.sign(s.meta["shear_disp_mm"][axis]) == sign and s.meta["shear_disp_mm"][1 - axis] == 0
@@ -73,5 +74,5 @@ def test_shear_probe_physics_report(tmp_path):
     assert (tmp_path / "results.json").exists() and (tmp_path / "report.md").exists()
     rows = {(r["sensor"], r["leds"], r["source"], r["shape"]): r for r in res["physics"]["rows"]}
     # the pigment (marker) warp is isotropic: the x/y difference comes from the LED layout, not the pipeline
-    assert 0.8 < rows[("mini-1-gel1", "as built", "pigment", "sphere_big")]["ratio_y_over_x"] < 1.25
-    assert 0.8 < rows[("mini-1-gel1", "equal4", "all", "sphere_big")]["ratio_y_over_x"] < 1.25
+    assert 0.8 < rows[("mini-1-gel1", "as built", "pigment", "sphere_10mm")]["ratio_y_over_x"] < 1.25
+    assert 0.8 < rows[("mini-1-gel1", "equal4", "all", "sphere_10mm")]["ratio_y_over_x"] < 1.25
