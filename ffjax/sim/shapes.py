@@ -187,6 +187,7 @@ def cube():  # 14 mm square face, knurled: a flat contact across most of the pad
     return flat_punch(14.0).height
 
 
+@functools.lru_cache(maxsize=32)  # one Shape per size: press's per-shape caches then hit
 def flat_punch(side_mm: float) -> Shape:
     """A knurled square flat punch like the cube indenter (0.5 mm rounded rim) with any face size: the
     contact-size factor of experiments.stability (the cube, 14 mm, is the largest flat face in training)."""
@@ -198,6 +199,7 @@ def flat_punch(side_mm: float) -> Shape:
     return Shape(_rounded(d, 0.5) + knurl, MAP_MM_PER_PX, name=f"flat_punch_{side_mm:g}mm", kind="user")
 
 
+@functools.lru_cache(maxsize=32)  # one Shape per size: press's per-shape caches then hit
 def sphere(radius_mm: float) -> Shape:
     """A smooth sphere like the sphere indenters with any radius: the curvature factor of
     experiments.stability (the big sphere, 40 mm, is the flattest curved indenter in training)."""
