@@ -34,6 +34,8 @@ STREAM = 1000  # sampling stream / render seed block no dataset split uses (held
 SHEAR_N = 1.0  # |F_t| of the shear-angle sets, N
 FLAT_SIDES_MM = (3.0, 5.0, 7.0, 10.0, 14.0, 18.0)
 SPHERE_RADII_MM = (4.0, 10.0, 20.0, 30.0, 40.0)
+BAR_LENGTHS_MM = (0.0, 4.0, 8.0, 12.0, 20.0, 30.0)
+BAR_RADIUS_MM = 4.0  # the small sphere's: length 0 is that training indenter
 TILT_TURN_DEG = (0.0, 45.0, 90.0, 135.0, 180.0)
 
 
@@ -71,6 +73,10 @@ def factors(cfg: dict) -> tuple[Factor, ...]:
         Factor("sphere_radius", "sphere radius (mm)", SPHERE_RADII_MM, SPHERE_RADII_MM.index(40.0),
                "a smooth sphere like the sphere indenters (the big sphere, 40 mm, is the flattest curved body in "
                "training), its radius from 4 to 40 mm (fruit are 20-37 mm), posed and loaded as the big sphere is"),
+        Factor("elongation", f"bar length (mm, radius {BAR_RADIUS_MM:g} mm)", BAR_LENGTHS_MM, 0,
+               f"a smooth rounded bar of radius {BAR_RADIUS_MM:g} mm (at length 0 the small sphere indenter), "
+               "0-30 mm long, posed and loaded as the small sphere is: the longest bars in training are the "
+               "cross's and the prism's 12 mm, the pad sees 20.3 x 15.2 mm, the marker and banana lie across it"),
         Factor("tilt_shear", "tilt direction turned from the shear's (deg)", TILT_TURN_DEG, 0,
                "the training sampling, except that each body's tilt (same magnitude) is turned by the level away "
                "from its shear's direction: at 0 the tool pushes along its tilted axis as in training; otherwise "
@@ -121,7 +127,7 @@ def presses(cfg: dict, f: Factor, li: int, n: int, sensor) -> dict:
     levels of noise, illumination and drift are the very same test set."""
     from ffjax import sim
     from ffjax.sim import dataset
-    from ffjax.sim.shapes import flat_punch, sphere
+    from ffjax.sim.shapes import bar, flat_punch, sphere
 
     level, fz_max = f.levels[li], float(cfg["data"]["fz_max"])
     if f.name == "flat_size":  # the cube's poses and loads, pressed with a flat face of another size
@@ -132,6 +138,10 @@ def presses(cfg: dict, f: Factor, li: int, n: int, sensor) -> dict:
         spec = dataset.SplitSpec("stability", SENSOR, (dataset.CALIB_SHAPE,), n, STREAM)
         p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
         return {"shapes": (sphere(level),), **p}
+    if f.name == "elongation":  # the small sphere's poses and loads, pressed with a bar of some length
+        spec = dataset.SplitSpec("stability", SENSOR, ("sphere_small",), n, STREAM)
+        p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
+        return {"shapes": (bar(level, BAR_RADIUS_MM),), **p}
     shapes = tuple(s for s in sim.INDENTERS if s != dataset.CALIB_SHAPE)
     spec = dataset.SplitSpec("stability", SENSOR, shapes, math.ceil(n / len(shapes)), STREAM)
     p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
@@ -394,6 +404,10 @@ MECHANISM = {
     "sphere_radius": "at a given load a flatter body makes a wider, shallower contact, and in a bonded layer the "
                      "stiffness grows steeply with the contact's width against the thickness, so spheres flatter "
                      "than the training bodies press contacts and depth-load relations no training press had",
+    "elongation": "a longer contact spreads the same load along a line: the pressure per unit length and the "
+                  "imprint's depth fall with length, so a depth-to-load relation learned on round and short "
+                  "contacts no longer holds, and a bar longer than the pad carries part of its load outside "
+                  "the field of view",
     "tilt_shear": "in training the shear is Fz tan(tilt) plus noise, so the contact's tilted geometry (which side "
                   "presses deeper) predicts the shear as well as the gel's sideways strain does; a model that reads "
                   "the tilt cue predicts the shear along the lean, and its shear error grows as the lean turns away "

@@ -209,6 +209,20 @@ def sphere(radius_mm: float) -> Shape:
     return Shape(_cap(X**2 + Y**2, radius_mm), MAP_MM_PER_PX, name=f"sphere_{radius_mm:g}mm", kind="user")
 
 
+@functools.lru_cache(maxsize=32)  # one Shape per size: press's per-shape caches then hit
+def bar(length_mm: float, radius_mm: float = 4.0) -> Shape:
+    """A smooth rounded bar (a cylinder of radius_mm lying along x, hemispherical ends; length_mm between the
+    end centres): the elongation factor of experiments.stability. At length 0 it is a sphere; at the
+    default radius, the small sphere indenter."""
+    if not 0 <= length_mm < 2 * _EXTENT_MM or not 0 < radius_mm <= 100:
+        raise ValueError(f"need 0 <= length_mm < {2 * _EXTENT_MM} and 0 < radius_mm <= 100, "
+                         f"got {length_mm}, {radius_mm}")
+    X, Y = _grid()
+    along = np.maximum(np.abs(X) - length_mm / 2, 0)
+    return Shape(_cap(along**2 + Y**2, radius_mm), MAP_MM_PER_PX, name=f"bar_{length_mm:g}x{radius_mm:g}mm",
+                 kind="user")
+
+
 def prism_edge():  # 110-degree wedge, edge rounded 0.3 mm, 12 mm long
     X, Y = _grid()
     cot = 1 / np.tan(np.radians(55))
