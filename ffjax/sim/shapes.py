@@ -223,11 +223,12 @@ def bar(length_mm: float, radius_mm: float = 4.0) -> Shape:
                  kind="user")
 
 
-def prism_edge():  # 110-degree wedge, edge rounded 0.3 mm, 12 mm long
+def prism_edge():  # 110-degree wedge, edge rounded 0.3 mm, 30 mm long: longer than the pad's diagonal (25.4 mm),
+    # so its line contact crosses the field of view at any yaw, as the edge of a box or a ruler does
     X, Y = _grid()
     cot = 1 / np.tan(np.radians(55))
     rho = 0.3
-    h = cot * (np.sqrt(X**2 + rho**2) - rho) + np.maximum(np.abs(Y) - 6, 0) ** 2 / 0.6
+    h = cot * (np.sqrt(X**2 + rho**2) - rho) + np.maximum(np.abs(Y) - 15, 0) ** 2 / 0.6
     return np.where(np.abs(X) < 6, h, FAR)
 
 
