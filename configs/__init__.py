@@ -207,7 +207,7 @@ RULES = {
     "train.batch_size": _POS_INT, "train.epochs": _POS_INT, "train.lr_backbone": _POS, "train.lr_heads": _POS,
     "train.schedule": _choice("constant", "warmup_cosine"), "train.warmup_steps": _NN_INT,
     "train.ckpt_every": _POS_INT, "train.grad_clip": _NN, "train.nonfinite": _choice("stop", "skip"),
-    "train.force_loss": _choice("newton", "normalized"),
+    "train.force_loss": _choice("newton", "normalized"), "train.compute_dtype": _choice("float32", "bfloat16"),
     "pretrain.steps": _NN_INT, "pretrain.batch_size": _POS_INT, "pretrain.lr": _POS,
     "pretrain.corpus_size": _NN_INT, "pretrain.out_dim": _POS_INT, "pretrain.warmup_steps": _NN_INT,
     "pretrain.min_lr_ratio": _PROB, "pretrain.weight_decay": _NN, "pretrain.grad_clip": _NN,

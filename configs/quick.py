@@ -47,6 +47,9 @@ CONFIG = {
         "nonfinite": "stop",
         # force term of the loss: "newton" (L1 in N, the release) or "normalized" (each axis / its range)
         "force_loss": "normalized",
+        # forward/backward precision of the train step: "float32" or "bfloat16" (float32 master weights,
+        # float32 losses, optimizer and BatchNorm statistics; evaluation stays float32)
+        "compute_dtype": "float32",
     },
     "pretrain": {
         "steps": 180, "batch_size": 32, "lr": 5e-4, "corpus_size": 6000, "out_dim": 1024,

@@ -6,7 +6,6 @@ in one run (these VMs lose CPU to neighbours).
 
 from __future__ import annotations
 
-import functools
 import glob
 import re
 import statistics
@@ -17,7 +16,6 @@ from collections import defaultdict
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 import configs
 from ffjax import models, registry, train
@@ -298,37 +296,18 @@ def decoder_kinds(preset: str, batch: int, size: int | None = None, warmup=2, st
     return res
 
 
-@functools.lru_cache(maxsize=4)
-def mixed_step(dtype):
-    """A train step computing in `dtype` with float32 master weights (params and images cast inside the
-    differentiated function, outputs cast back before the losses); otherwise ffjax's _train_step."""
-    def _step(state, batch):
-        key = jax.random.fold_in(state.key, state.step)
-
-        def loss_fn(params):
-            p = jax.tree.map(lambda x: x.astype(dtype), params)
-            out, stats = step_lib._forward(state, p, batch["image"].astype(dtype), True, key)
-            out = jax.tree.map(lambda x: x.astype(jnp.float32), out)
-            loss, f, d = step_lib._losses(state, out, batch)
-            return loss, (f, d, stats)
-
-        (loss, (f, d, stats)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
-        updates, opt = state.tx.update(grads, state.opt_state, state.params)
-        stats = jax.tree.map(lambda x: x.astype(jnp.float32), stats)
-        new = state.replace(step=state.step + 1, params=optax.apply_updates(state.params, updates),
-                            batch_stats=stats, opt_state=opt)
-        return new, {"loss": loss, "force_l1": f, "depth_mse": d}
-
-    return jax.jit(_step, donate_argnums=0)
+def with_dtype(cfg: dict, dtype: str) -> dict:
+    """cfg with train.compute_dtype set: the library's own mixed-precision train step."""
+    return {**cfg, "train": {**cfg["train"], "compute_dtype": dtype}}
 
 
 def bf16_speed(cfg: dict, method: str, batch: int, size: int, warmup=2, steps=3, rounds=3,
                done: dict | None = None) -> dict:
     """bfloat16 compute (float32 master weights) vs float32; `done["float32"]` may be the library step
     already measured on the same case (the same computation in float32)."""
-    res = {name: (done or {}).get(name) or train_case(cfg, method, batch, size, warmup, steps, rounds,
-                                                      step_fn=mixed_step(dt))
-           for name, dt in (("float32", jnp.float32), ("bfloat16", jnp.bfloat16))}
+    res = {name: (done or {}).get(name) or train_case(with_dtype(cfg, name), method, batch, size, warmup, steps,
+                                                      rounds)
+           for name in ("float32", "bfloat16")}
     res["speedup_bf16"] = res["float32"]["ms"] / res["bfloat16"]["ms"]
     return res
 
@@ -340,14 +319,13 @@ def bf16_accuracy(cfg: dict, method: str, arrays: dict, val: dict, steps: int, b
     n = len(arrays["force"])
     order = np.random.default_rng(0).permutation(np.tile(np.arange(n), steps * batch // n + 1))
     res = {}
-    for name, dt in (("float32", jnp.float32), ("bfloat16", jnp.bfloat16)):
-        fn = mixed_step(dt)
-        state = train.init_state(cfg, registry.get(method), jax.random.PRNGKey(0), size)
+    for name in ("float32", "bfloat16"):
+        state = train.init_state(with_dtype(cfg, name), registry.get(method), jax.random.PRNGKey(0), size)
         losses = []
         t0 = time.perf_counter()
         for i in range(steps):
             idx = order[i * batch: (i + 1) * batch]
-            state, m = fn(state, {k: v[idx] for k, v in arrays.items()})
+            state, m = train.train_step(state, {k: v[idx] for k, v in arrays.items()})
             losses.append(m["loss"])
         losses = [float(x) for x in jax.device_get(losses)]
         ev = train.eval_step(state, val)

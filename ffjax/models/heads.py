@@ -41,10 +41,12 @@ class WeightNormDense(nn.Module):
         bound = 1.0 / math.sqrt(fan_in)  # torch Linear default init range
         v = self.param("v", _uniform(bound), (fan_in, self.features))
         g = self.param("g", lambda _key: jnp.linalg.norm(v, axis=0))
-        w = v * (g / jnp.linalg.norm(v, axis=0))
+        # the norm reduces over fan_in inputs: in float32 even when the step feeds bfloat16 params
+        v32 = v.astype(jnp.float32)
+        w = v32 * (g.astype(jnp.float32) / jnp.linalg.norm(v32, axis=0))
         y = x @ w.astype(x.dtype)
         if self.use_bias:
-            y = y + self.param("bias", _uniform(bound), (self.features,))
+            y = y + self.param("bias", _uniform(bound), (self.features,)).astype(y.dtype)
         return y
 
 
@@ -138,6 +140,7 @@ class UpConv5(nn.Module):
     fast=True computes the same function as a 3x3 conv at the low resolution with 4*Cout outputs (one per
     output phase, kernels summed from the k5 taps) + pixel shuffle: 2.8x fewer FLOPs and no upsampled
     input map. fast=False is the literal upsample-then-conv (reference; tests check they agree).
+    Computes in the input's dtype (a bfloat16 train step feeds bfloat16 maps; lax.conv wants equal dtypes).
     """
 
     features: int
@@ -149,14 +152,16 @@ class UpConv5(nn.Module):
         kernel = self.param("kernel", nn.initializers.lecun_normal(), (5, 5, cin, c))
         bias = self.param("bias", nn.initializers.zeros, (c,))
         dn = ("NHWC", "HWIO", "NHWC")
+        bias = bias.astype(x.dtype)
         if not self.fast:
             y = jax.lax.conv_general_dilated(
-                upsample_nearest2(x), kernel, (1, 1), ((2, 2), (2, 2)), dimension_numbers=dn
+                upsample_nearest2(x), kernel.astype(x.dtype), (1, 1), ((2, 2), (2, 2)), dimension_numbers=dn
             )
             return y + bias
+        # the phase kernels sum up to 4 taps: in float32, rounded to the input's dtype once
         taps = jnp.asarray(_PHASE_TAPS)
-        k = jnp.einsum("apu,bqv,uvio->pqiabo", taps, taps, kernel).reshape(3, 3, cin, 4 * c)
-        y = jax.lax.conv_general_dilated(x, k, (1, 1), ((1, 1), (1, 1)), dimension_numbers=dn)
+        k = jnp.einsum("apu,bqv,uvio->pqiabo", taps, taps, kernel.astype(jnp.float32)).reshape(3, 3, cin, 4 * c)
+        y = jax.lax.conv_general_dilated(x, k.astype(x.dtype), (1, 1), ((1, 1), (1, 1)), dimension_numbers=dn)
         return depth_to_space2(y + jnp.tile(bias, 4))
 
 

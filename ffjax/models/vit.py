@@ -117,7 +117,7 @@ class LayerScale(nn.Module):
     @nn.compact
     def __call__(self, x):
         gamma = self.param("gamma", nn.initializers.constant(self.init_value), (x.shape[-1],))
-        return x * gamma
+        return x * gamma.astype(x.dtype)
 
 
 class Mlp(nn.Module):
@@ -170,7 +170,7 @@ class ViT(nn.Module):
         cls = self.param("cls_token", nn.initializers.normal(1e-6), (1, 1, d))
         pos = self.param("pos_embed", _dense_init, (1, 1 + g * g, d))
         x = jnp.concatenate([jnp.broadcast_to(cls, (b, 1, d)).astype(x.dtype), x], axis=1)
-        x = x + interpolate_pos_embed(pos, (h, w), self.interpolate_offset)
+        x = x + interpolate_pos_embed(pos, (h, w), self.interpolate_offset).astype(x.dtype)
         for i in range(self.depth):
             x = Block(self.dim, self.heads, self.mlp_ratio, self.layerscale, name=f"blocks_{i}")(x)
         x = nn.LayerNorm(LN_EPS, name="norm")(x)

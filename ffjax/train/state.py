@@ -24,6 +24,8 @@ GROUPS = ("backbone", "heads", "frozen")
 TRAINABLE = ("all", "heads", "regressor", "last")
 # Calibration's "last": the final Linear(->3) and the LayerNorm before it (release naming).
 LAST_LAYERS = ("out", "norm_3")
+# train.compute_dtype: the dtype of the train step's forward/backward (master weights stay float32)
+COMPUTE_DTYPES = ("float32", "bfloat16")
 
 
 @struct.dataclass
@@ -47,6 +49,9 @@ class TrainState:
     # Per-axis weights of the force L1 (mean 1): None = plain newtons; train.force_loss="normalized"
     # weighs each axis by 1 / its training range, as the metric does.
     force_weights: tuple[float, float, float] | None = struct.field(pytree_node=False, default=None)
+    # train.compute_dtype: the train step runs forward and backward in this dtype on a cast copy of the
+    # params; params, gradients, optimizer state and BatchNorm statistics stay float32. Evaluation is float32.
+    compute_dtype: str = struct.field(pytree_node=False, default="float32")
 
     def variables(self) -> dict:
         out = {"params": self.params}
@@ -230,7 +235,8 @@ def init_state(
 
     init_backbone=(params, batch_stats) replaces params["backbone"]. `labels_fn` overrides the
     label function built from (trainable, spec.frozen_backbone). `cfg_train` overrides cfg["train"]
-    (calibration passes its own lr). The rng key is split: one half initialises, one is carried.
+    (calibration passes its own lr); its compute_dtype (float32 when absent) is the train step's precision.
+    The rng key is split: one half initialises, one is carried.
     """
     from ffjax import models
 
@@ -247,6 +253,9 @@ def init_state(
     tx = make_optimizer(cfg_train, labeler, total_steps)
     params = variables["params"]
     beta = float(getattr(spec, "beta", 0.0)) if getattr(spec, "depth_head", False) else 0.0
+    compute_dtype = cfg_train.get("compute_dtype", "float32")  # configs written before the key: float32
+    if compute_dtype not in COMPUTE_DTYPES:
+        raise ValueError(f"train.compute_dtype must be one of {COMPUTE_DTYPES}, got {compute_dtype!r}")
     return TrainState(
         step=jnp.zeros((), jnp.int32),
         params=params,
@@ -261,6 +270,7 @@ def init_state(
         bn_train=getattr(labeler, "backbone_trains", True),
         head_bn_train=getattr(labeler, "regressor_trains", True),
         force_weights=force_weights(cfg, cfg_train),
+        compute_dtype=compute_dtype,
     )
 
 

@@ -6,6 +6,10 @@ training range; the logged force_l1 is always plain newtons.
 Data parallel: the batch is sharded along a 1-D mesh of all devices and the state is replicated;
 XLA inserts the gradient all-reduce, so the numbers equal a single-device step up to float
 summation order. One device is the degenerate mesh.
+Mixed precision (train.compute_dtype="bfloat16", state.compute_dtype): the train step runs forward and
+backward on a bfloat16 copy of the float32 params and images; outputs return to float32 before the losses,
+so gradients, Adam and the updates stay float32 (master weights), as do BatchNorm's running statistics.
+Evaluation always runs in float32.
 """
 
 from __future__ import annotations
@@ -57,6 +61,24 @@ def _losses(state: TrainState, out, batch, weights=None):
     return loss, force_l1, depth_mse
 
 
+def _mixed_forward(state: TrainState, params, images, key):
+    """The training forward in state.compute_dtype: the cast sits inside the differentiated function, so
+    gradients reach the float32 params in float32. float32 takes the plain path (no casts traced at all)."""
+    if state.compute_dtype == "float32":
+        return _forward(state, params, images, True, key)
+    dtype = jnp.dtype(state.compute_dtype)
+    out, new_stats = _forward(state, _cast(params, dtype), images.astype(dtype), True, key)
+    # losses in float32 (a bf16 MSE over a whole depth map loses the small residuals); running statistics
+    # keep their float32 dtype (flax reduces in float32 already; the cast makes it a guarantee)
+    out = _cast(out, jnp.float32)
+    new_stats = jax.tree.map(lambda n, o: n.astype(o.dtype), new_stats, state.batch_stats)
+    return out, new_stats
+
+
+def _cast(tree, dtype):
+    return jax.tree.map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
+
+
 def _train_step(state: TrainState, batch: dict):
     TRACE_COUNT["train"] += 1
     labels = state.labels_fn(state.params)
@@ -66,7 +88,7 @@ def _train_step(state: TrainState, batch: dict):
         # Frozen leaves get stop_gradient: their backward pass is never built (a frozen backbone
         # costs a forward only), and set_to_zero keeps them fixed.
         params = jax.tree.map(lambda p, l: jax.lax.stop_gradient(p) if l == "frozen" else p, params, labels)
-        out, new_stats = _forward(state, params, batch["image"], True, key)
+        out, new_stats = _mixed_forward(state, params, batch["image"], key)
         loss, force_l1, depth_mse = _losses(state, out, batch)
         return loss, (force_l1, depth_mse, new_stats)
 
