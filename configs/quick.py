@@ -42,6 +42,8 @@ CONFIG = {
         "schedule": "warmup_cosine",  # constant | warmup_cosine
         "warmup_steps": 50,
         "ckpt_every": 200,
+        # validate (and pick the best checkpoint) every this many epochs; the last epoch always validates
+        "val_every": 1,
         "grad_clip": 0.0,
         # a NaN/inf loss or gradient: "stop" (raise, naming the step and batch) or "skip" (drop that update)
         "nonfinite": "stop",

@@ -31,6 +31,8 @@ CONFIG = {
         "schedule": "constant",
         "warmup_steps": 2,
         "ckpt_every": 5,
+        # validate (and pick the best checkpoint) every this many epochs; the last epoch always validates
+        "val_every": 1,
         "grad_clip": 0.0,
         # a NaN/inf loss or gradient: "stop" (raise, naming the step and batch) or "skip" (drop that update)
         "nonfinite": "stop",

@@ -57,6 +57,22 @@ def test_run_folder_is_self_describing(uninterrupted):
     assert jax.tree.structure(best["params"]) == jax.tree.structure(variables["params"])
 
 
+def test_val_every_skips_validation_but_always_validates_the_last_epoch(cfg, tiny_data, uninterrupted, tmp_path):
+    import csv
+
+    run = train.train(configs.get("smoke", {"train.epochs": 3, "train.ckpt_every": 5, "train.val_every": 2}),
+                      METHOD, tiny_data, tmp_path / "run", progress=False)
+    rows = list(csv.DictReader(open(tmp_path / "run" / "epochs.csv")))
+    assert [r["epoch"] for r in rows] == ["1", "2", "3"]
+    assert [r["val_loss"] != "" for r in rows] == [False, True, True]  # epoch 2 (every 2nd) and the last
+    vals = [json.loads(r) for r in open(tmp_path / "run" / "train_log.jsonl")]
+    assert [r["epoch"] for r in vals if r["kind"] == "val"] == [2, 3]
+    assert run["best_epoch"] in (2, 3) and run["eval_time_s"] > 0
+    # the same training: validation only reads, so the weights equal the every-epoch run's
+    for a, b in zip(_leaves(run["state"].params), _leaves(uninterrupted["state"].params)):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_kill_and_resume_matches_uninterrupted(cfg, tiny_data, uninterrupted, tmp_path):
     class Killed(RuntimeError):
         pass

@@ -185,14 +185,14 @@ def test_no_space_for_a_checkpoint_fails_fast(data, tmp_path, monkeypatch):
 
 
 def test_disk_full_mid_save_keeps_last_good_checkpoint(data, reference, tmp_path, monkeypatch):
-    """The writer raises ENOSPC while checkpoint 8 is being written: a clear error, checkpoint 6 intact,
+    """The writer raises ENOSPC while checkpoint 9 is being written: a clear error, checkpoint 6 intact,
     and resuming (space freed) ends bitwise equal to the uninterrupted run."""
     from orbax.checkpoint._src.handlers import json_checkpoint_handler as jch
 
     real = jch.JsonCheckpointHandler._save_fn
 
     async def full_disk(self, x, directory):
-        if "checkpoints/8." in str(directory):
+        if "checkpoints/9." in str(directory):
             raise OSError(errno.ENOSPC, "No space left on device")
         return await real(self, x, directory)
 
