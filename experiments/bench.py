@@ -1,6 +1,6 @@
 """Benchmarks: ffjax against the same architectures in PyTorch and against this machine's limit.
 
-    python -m experiments.bench [--quick] [--out DIR] [--torch-python /path/to/python-with-torch]
+    python -m experiments.bench [--quick] [--device auto|cpu|gpu] [--out DIR] [--torch-python PYTHON]
 
 Writes DIR/results.json (every number, commit, machine, steal/load per section), DIR/report.md (every
 ratio) and PNG plots. The PyTorch side (experiments/bench_torch.py) runs in this interpreter when torch
@@ -36,6 +36,7 @@ PLANS = {
         "sim": {"n": {"64x64": 10}, "sizes": {"64x64": (24, 32)}}, "data": {"per_shape": 4, "batches": 3},
         "workers": (0,), "scaling": {"base": "smoke", "batch": (4, 8), "size": (16, 32), "model": ((16, 1), (32, 2))},
         "dp": None, "bf16_acc": {"preset": "smoke", "steps": 12, "batch": 8}, "profile": True,
+        "loop": {"train": 32, "val": 8, "epochs": 2, "val_every": (1, 2)},
     },
     "quick": {
         "cases": {"quick_vit": {"preset": "quick", "method": "dino_rd", "size": 64, "batch": 64, "infer": (1, 32)},
@@ -48,6 +49,8 @@ PLANS = {
         "scaling": {"base": "quick", "batch": (16, 64), "size": (32, 64), "model": ((64, 2), (128, 4))},
         "dp": {"batch": 64, "warmup": 1, "steps": 2, "rounds": 2},
         "bf16_acc": {"preset": "smoke", "size": 64, "steps": 100, "batch": 32}, "profile": True,
+        # the quick preset's epoch (6,000 presses, 600 for validation), validated every epoch or every 5th
+        "loop": {"train": 6000, "val": 600, "epochs": 5, "val_every": (1, 5)},
     },
     "full": {
         "cases": {"quick_vit": {"preset": "quick", "method": "dino_rd", "size": 64, "batch": 64, "infer": (1, 32)},
@@ -61,6 +64,7 @@ PLANS = {
                     "model": ((64, 2), (96, 3), (128, 4), (192, 6), (256, 8))},
         "dp": {"batch": 64, "warmup": 1, "steps": 3, "rounds": 3},
         "bf16_acc": {"preset": "quick", "size": 64, "steps": 150, "batch": 64}, "profile": True,
+        "loop": {"train": 6000, "val": 600, "epochs": 5, "val_every": (1, 5)},
     },
 }
 
@@ -129,8 +133,8 @@ class Section:
 class TorchSide:
     """bench_torch in-process when torch imports here, else a `--serve` subprocess under torch_python."""
 
-    def __init__(self, torch_python: str | None = None):
-        self.proc, self.local, self.why = None, None, None
+    def __init__(self, torch_python: str | None = None, device: str = "cpu"):
+        self.proc, self.local, self.why, self.device = None, None, None, device
         try:
             from experiments import bench_torch
 
@@ -146,12 +150,16 @@ class TorchSide:
         if self.info and "error" in self.info:
             self.why, self.info = self.info["error"], None
             self.close()
+        elif self.info and device == "cuda" and not self.info.get("cuda"):
+            self.why, self.info = "--device gpu, but torch sees no CUDA device", None
+            self.close()
 
     @property
     def available(self) -> bool:
         return self.local is not None or self.proc is not None
 
     def ask(self, req: dict) -> dict | None:
+        req = {"device": self.device, **req}
         if self.local is not None:
             return self.local.handle(req)
         if self.proc is None:
@@ -185,8 +193,10 @@ def run_models(plan: dict, torch: TorchSide, res: dict) -> None:
         w, k, r = case.get("timing", plan["timing"])
         out = {"arch": arch, "train": {"ffjax": bj.train_case(cfg, m, case["batch"], s, w, k, r)}}
         if torch.available:
-            out["train"]["torch"] = torch.ask({"op": "train", "arch": arch, "batch": case["batch"], "warmup": w,
-                                               "steps": k, "rounds": r})
+            req = {"op": "train", "arch": arch, "batch": case["batch"], "warmup": w, "steps": k, "rounds": r}
+            out["train"]["torch"] = torch.ask(req)
+            if plan.get("torch_compile"):
+                out["train"]["torch_compile"] = torch.ask({**req, "compile": True})
         out["infer"] = {}
         wi, ki, ri = case.get("infer_timing", plan["infer_timing"])
         for bsz in case["infer"]:
@@ -234,7 +244,8 @@ def run_scaling(plan: dict, res: dict, base_case: dict | None) -> None:
 
 
 def _slim(r: dict) -> dict:
-    keys = ("ms", "img_s", "params", "gflop_per_step", "achieved_gflops", "compile_s", "batch", "input_size")
+    keys = ("ms", "img_s", "params", "gflop_per_step", "gflop_per_step_xla", "achieved_gflops", "compile_s", "batch",
+            "input_size")
     return {k: r[k] for k in keys} | {"peak_mib": (r["memory"] or {}).get("peak_bytes", 0) / 2**20}
 
 
@@ -268,8 +279,12 @@ def run_data(plan: dict, res: dict, main_case: dict, tmp: Path) -> None:
     for v in res["pipeline"].values():
         v["ratio_to_train_consumption"] = v["img_s"] / need
     res["pipeline"]["train_consumption_img_s"] = need
-    res["loop_overhead"] = bd.loop_overhead(cfg, "dino_rd", src, stats, size, batch,
-                                            max(3, plan["timing"][1] * plan["timing"][2]))
+    lp = plan["loop"]
+    res["loop_efficiency"] = {
+        f"val_every_{v}": bd.loop_efficiency(bj.case_cfg(plan["cases"]["quick_vit"]["preset"],
+                                                         {"train.val_every": v}),
+                                             "dino_rd", src, size, batch, lp["train"], lp["val"], lp["epochs"])
+        for v in lp["val_every"]}
     res["_arrays"] = (src, stats, size)
 
 
@@ -309,10 +324,16 @@ def run_fast(plan: dict, res: dict, models_res: dict, data_ctx) -> None:
 
 
 def run(mode: str | dict = "quick", out: str | Path | None = None, torch_python: str | None = None,
-        log=print, skip: tuple[str, ...] = ()) -> dict:
+        log=print, skip: tuple[str, ...] = (), torch_compile: bool | None = None) -> dict:
     """Run every section of `mode` ("smoke" | "quick" | "full", or a plan dict shaped like PLANS' with a
-    "name"); write results.json, report.md and plots to `out`."""
-    plan = PLANS[mode] if isinstance(mode, str) else mode
+    "name") on jax's default device (see `select_device`); write results.json, report.md and plots to `out`.
+    The PyTorch side runs on CUDA when jax does; torch_compile (default: on a GPU only, as inductor's CPU
+    compile of a backward takes minutes) adds torch.compile timings of the train step."""
+    import jax
+
+    plan = dict(PLANS[mode] if isinstance(mode, str) else mode)
+    on_gpu = jax.default_backend() == "gpu"
+    plan["torch_compile"] = on_gpu if torch_compile is None else torch_compile
     mode = mode if isinstance(mode, str) else plan.get("name", "custom")
     out = Path(out or ROOT / "results" / f"bench-{mode}").absolute()
     out.mkdir(parents=True, exist_ok=True)
@@ -320,7 +341,7 @@ def run(mode: str | dict = "quick", out: str | Path | None = None, torch_python:
     res: dict = {"experiment": "bench", "mode": mode, "commit": git_commit(),
                  "date_utc": datetime.now(UTC).isoformat(timespec="seconds"), "machine": machine(),
                  "load_start": list(os.getloadavg()), "_out": str(out)}
-    torch = TorchSide(torch_python)
+    torch = TorchSide(torch_python, "cuda" if on_gpu else "cpu")
     res["torch"] = torch.info or {"skipped": torch.why}
     try:
         with Section(res, "peak", log):
@@ -387,9 +408,26 @@ def main(argv=None):
     ap.add_argument("--torch-python", default=None,
                     help="python with torch for the PyTorch side when torch is not importable here")
     ap.add_argument("--skip", action="append", default=[], choices=("profile", "data", "scaling", "dp"))
+    ap.add_argument("--device", choices=("auto", "cpu", "gpu"), default="auto",
+                    help="where jax and the PyTorch side run (auto: a GPU when jax has one)")
+    ap.add_argument("--torch-compile", action=argparse.BooleanOptionalAction, default=None,
+                    help="also time torch.compile (default: on a GPU only)")
     a = ap.parse_args(argv)
+    select_device(a.device)
     mode = "smoke" if a.smoke else "quick" if a.quick else "full"
-    run(mode, a.out, a.torch_python, skip=tuple(a.skip))
+    run(mode, a.out, a.torch_python, skip=tuple(a.skip), torch_compile=a.torch_compile)
+
+
+def select_device(device: str) -> None:
+    """Pin jax to "cpu" or "gpu" (before its first computation); "auto" keeps jax's choice. A GPU is not
+    preallocated (XLA takes 75% of it by default, and the PyTorch side shares the device)."""
+    import jax
+
+    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+    if device != "auto":
+        jax.config.update("jax_platforms", {"cpu": "cpu", "gpu": "cuda"}[device])
+    if device == "gpu" and jax.default_backend() != "gpu":
+        raise SystemExit("error: --device gpu, but jax finds no GPU (install jax[cuda12] or use --device cpu)")
 
 
 if __name__ == "__main__":

@@ -4,10 +4,12 @@ pipeline ever bounds a training step."""
 from __future__ import annotations
 
 import json
+import tempfile
 import time
 from pathlib import Path
 
 import jax
+import numpy as np
 
 from ffjax import data, registry, sim, train
 from ffjax.sim import dataset as sim_dataset
@@ -70,29 +72,73 @@ def pipeline_rates(source, stats, size: int, batch: int, n: int, workers=(0, 2))
     return out
 
 
-def loop_overhead(cfg: dict, method: str, source, stats, size: int, batch: int, steps: int) -> dict:
-    """Train-loop step time fed by the pipeline (next(it) + train_step, as ffjax.train.loop does) vs fed
-    one ready device batch: the pipeline's real cost when it shares the 2 cores with the step."""
-    arrays = data.load_arrays(source, stats, size)
+class Repeated:
+    """A split's records repeated to `n` (index i reads record i mod len): a dataset with the preset's epoch
+    length from a few hundred rendered presses, for timing the loop."""
+
+    def __init__(self, source, n: int):
+        self.source, self.n = source, int(n)
+        self.background = source.background
+        self._all = source.read_range(0, len(source))
+
+    def __len__(self) -> int:
+        return self.n
+
+    def _idx(self, start, stop):
+        return np.arange(start, min(stop, self.n)) % len(self.source)
+
+    def __getitem__(self, i) -> dict:
+        j = int(i) % len(self.source)
+        return {**{k: v[j] for k, v in self._all.items()}, "background": self.background}
+
+    def read_range(self, start: int = 0, stop: int | None = None) -> dict:
+        idx = self._idx(start, self.n if stop is None else stop)
+        return {k: v[idx] for k, v in self._all.items()}
+
+    @property
+    def forces(self) -> np.ndarray:
+        return self._all["force"][self._idx(0, self.n)].astype(np.float32)
+
+
+def loop_efficiency(cfg: dict, method: str, source, size: int, batch: int, n_train: int, n_val: int,
+                    epochs: int, warmup: int = 3) -> dict:
+    """ffjax.train.loop.train against its own jitted step, over the same steps at the same batch.
+
+    The loop trains `epochs` epochs of `n_train` records (validation on `n_val`, checkpoints, logs, the
+    data pipeline, all as configured in cfg); its clock starts after `warmup` steps (compilation excluded)
+    and stops when train() returns (final validation and checkpoint waits included). The pure step runs
+    the same number of steps on one ready device batch. `efficiency` = pure ms/step over loop ms/step;
+    `efficiency_training` leaves out the loop's evaluation (feature-norm refresh + validation, reported as
+    `eval_share`), whose cost is set by train.val_every rather than by the loop's overhead."""
+    cfg = {**cfg, "train": {**cfg["train"], "batch_size": batch, "epochs": epochs}}
+    cfg["data"] = {**cfg["data"], "input_size": size}
+    tr, va = Repeated(source, n_train), Repeated(source, n_val)
+    clock = {}
+
+    def cb(done, state):
+        if done == warmup:
+            jax.block_until_ready(state.params)
+            clock["t0"] = time.perf_counter()
+
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = train.train(cfg, method, (tr, va), Path(tmp) / "run", callback=cb, progress=False)
+    loop_s = time.perf_counter() - clock["t0"]
+    steps = summary["steps"] - warmup
+    stats = data.Stats.compute(tr, cfg["data"], size)
     state = train.init_state(cfg, registry.get(method), jax.random.PRNGKey(0), size)
-    fixed = jax.device_put(next(iter(data.make_dataset(source, stats, size, batch, 0, arrays=arrays))))
-    state, m = train.train_step(state, fixed)  # compile
+    fixed = jax.device_put(next(iter(data.make_dataset(tr, stats, size, batch, 0))))
+    for _ in range(warmup):
+        state, m = train.train_step(state, fixed)
     jax.block_until_ready(m["loss"])
-    res = {}
-    feeds = {"fixed_batch": None,
-             "in_memory": data.make_dataset(source, stats, size, batch, 0, arrays=arrays),
-             "streaming_w0": data.make_dataset(source, stats, size, batch, 0, in_memory=False)}
-    for name, ds in feeds.items():
-        it = iter(ds) if ds is not None else None
-        if it is not None:
-            next(it)
-        t0 = time.perf_counter()
-        for _ in range(steps):
-            b = next(it) if it is not None else fixed
-            state, m = train.train_step(state, b)
-        jax.block_until_ready(m["loss"])
-        res[name] = {"ms_per_step": (time.perf_counter() - t0) / steps * 1e3}
-    for name in ("in_memory", "streaming_w0"):
-        res[name]["overhead"] = res[name]["ms_per_step"] / res["fixed_batch"]["ms_per_step"] - 1
-    res["steps"] = steps
-    return res
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        state, m = train.train_step(state, fixed)
+    jax.block_until_ready(m["loss"])
+    pure_s = time.perf_counter() - t0
+    eval_s = summary["eval_time_s"]
+    return {"method": method, "batch": batch, "input_size": size, "steps": steps, "epochs": epochs,
+            "steps_per_epoch": summary["steps_per_epoch"], "val_every": cfg["train"].get("val_every", 1),
+            "ckpt_every": cfg["train"]["ckpt_every"], "n_train": n_train, "n_val": n_val,
+            "loop_ms": loop_s / steps * 1e3, "pure_ms": pure_s / steps * 1e3, "eval_s": eval_s,
+            "efficiency": pure_s / loop_s, "efficiency_training": pure_s / max(loop_s - eval_s, 1e-9),
+            "eval_share": eval_s / loop_s}

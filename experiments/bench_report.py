@@ -34,6 +34,7 @@ def collect_ratios(res: dict) -> dict:
     for name, m in (res.get("models") or {}).items():
         tj, tt = _g(m, "train", "ffjax", "ms"), _g(m, "train", "torch", "ms")
         r[f"train_{name}_ffjax_over_torch"] = _div(tt, tj)
+        r[f"train_{name}_ffjax_over_torch_compile"] = _div(_g(m, "train", "torch_compile", "ms"), tj)
         r[f"train_{name}_fraction_of_peak"] = _div(_g(m, "train", "ffjax", "achieved_gflops"), peak)
         for b, d in (m.get("infer") or {}).items():
             r[f"infer_{name}_{b}_ffjax_over_torch"] = _div(_g(d, "torch", "ms"), _g(d, "ffjax", "ms"))
@@ -52,9 +53,9 @@ def collect_ratios(res: dict) -> dict:
                                                      _g(pipe, "streaming_w0", "batches_s"))
     r["pipeline_streaming_w2_over_w0"] = _div(_g(pipe, "streaming_w2", "batches_s"),
                                               _g(pipe, "streaming_w0", "batches_s"))
-    lo = _g(res, "data", "loop_overhead", default={})
-    for k in ("in_memory", "streaming_w0"):
-        r[f"loop_step_fixed_over_{k}"] = _div(_g(lo, "fixed_batch", "ms_per_step"), _g(lo, k, "ms_per_step"))
+    for k, v in (_g(res, "data", "loop_efficiency", default={}) or {}).items():
+        r[f"loop_efficiency_{k}"] = v.get("efficiency")
+        r[f"loop_efficiency_training_{k}"] = v.get("efficiency_training")
     f = res.get("fast", {})
     r["donation_speedup"] = _g(f, "donation", "speedup_donate")
     r["donation_peak_memory_ratio"] = _g(f, "donation", "peak_bytes_ratio_donate_over_no")
@@ -77,6 +78,18 @@ def _f(x, nd=1):
     return f"{x:,.{nd}f}" if abs(x) >= 0.1 or x == 0 else f"{x:.3g}"
 
 
+def _on_gpu(res: dict) -> bool:
+    return any("cuda" in d.lower() or "gpu" in d.lower() for d in res["machine"].get("devices", []))
+
+
+def _device_line(res: dict) -> str:
+    devices = res["machine"].get("devices", [])
+    if _on_gpu(res):
+        return (f"jax ran on {', '.join(devices)}, the PyTorch side on "
+                f"{_g(res, 'torch', 'cuda_device') or 'its CPU'}.")
+    return "jax and the PyTorch side ran on the CPU: no GPU numbers in this run."
+
+
 def report(res: dict) -> str:
     m, r = res["machine"], res.get("ratios", {})
     env = res.get("_env", {})
@@ -87,7 +100,7 @@ def report(res: dict) -> str:
            f"{_g(res, 'torch', 'torch') or _g(res, 'torch', 'skipped')} "
            f"({_g(res, 'torch', 'threads', default='?')} threads). Load average at start "
            f"{res['load_start'][0]:.1f}, end {res['load_end'][0]:.1f}. Times are medians after warm-up; compare "
-           "ratios within this run only. No GPU was available: every number is CPU; the GPU part was not run.\n"]
+           f"ratios within this run only. {_device_line(res)}\n"]
     out.append("## Steal and load per section\n")
     out.append(md_table(["section", "wall s", "steal %", "busy %", "load before", "load after"],
                         [[k, _f(v["wall_s"], 0), _f(100 * v["steal"]), _f(100 * v["busy"]), _f(v["load1_before"]),
@@ -101,13 +114,16 @@ def report(res: dict) -> str:
         t = c.get("train")
         if not t:
             continue
-        j, tt = t["ffjax"], t.get("torch") or {}
+        j, tt, tc = t["ffjax"], t.get("torch") or {}, t.get("torch_compile") or {}
         rows.append([name, f"{c['arch']['backbone']} @{t['ffjax']['input_size']}", j["batch"], _f(j["img_s"]),
-                     _f(tt.get("img_s")), _f(r.get(f"train_{name}_ffjax_over_torch"), 2),
+                     _f(tt.get("img_s")), _f(r.get(f"train_{name}_ffjax_over_torch"), 2), _f(tc.get("img_s")),
+                     _f(r.get(f"train_{name}_ffjax_over_torch_compile"), 2),
                      f"{j['params']:,} / {tt.get('params', '–'):,}" if tt.get("params") else f"{j['params']:,}",
                      _f(j["compile_s"])])
-    out.append(md_table(["case", "model", "batch", "ffjax img/s", "torch img/s", "ffjax/torch", "params jax/torch",
-                         "compile s"], rows))
+    out.append(md_table(["case", "model", "batch", "ffjax img/s", "torch eager img/s", "ffjax/eager",
+                         "torch.compile img/s", "ffjax/compile", "params jax/torch", "ffjax compile s"], rows))
+    if not any(r2[6] != "–" for r2 in rows):
+        out.append("\ntorch.compile was not timed (default on a GPU only; `--torch-compile` asks for it).\n")
     out.append("\n## 2. Inference, force only (ms per call)\n")
     rows = []
     for name, c in res.get("models", {}).items():
@@ -117,16 +133,21 @@ def report(res: dict) -> str:
                          _f(r.get(f"infer_{name}_{b}_ffjax_over_torch"), 2)])
     out.append(md_table(["case", "batch", "ffjax ms", "torch ms", "ffjax img/s", "torch img/s", "ffjax/torch"],
                         rows))
+    where = "this GPU" if _on_gpu(res) else "this CPU"
     out.append(f"\nTargets: quick model at batch 1 runs {_f(r.get('target_quick_b1_fps_over_digit60'), 1)}x a "
-               f"DIGIT's 60 fps on this CPU (torch {_f(r.get('target_quick_b1_torch_fps_over_digit60'), 1)}x). "
-               f"ViT-B/14 at 224, batch 1, CPU: {_f(r.get('target_b14_cpu_fps_over_gelsight25'), 2)}x a GelSight "
-               "Mini's 25 fps. The GPU target (ViT-B/14 keeps up with 25 fps with large headroom) was not run: "
-               "no GPU here.\n")
+               f"DIGIT's 60 fps on {where} (torch {_f(r.get('target_quick_b1_torch_fps_over_digit60'), 1)}x). "
+               f"ViT-B/14 at 224, batch 1: {_f(r.get('target_b14_cpu_fps_over_gelsight25'), 2)}x a GelSight "
+               "Mini's 25 fps.\n")
     out.append("## 3. FLOP/s of the train step vs the machine's peak\n")
-    rows = [[n, _f(c["train"]["ffjax"]["gflop_per_step"]), _f(c["train"]["ffjax"]["achieved_gflops"]),
+    out.append("GFLOP/step counts the step's matrix products and convolutions from its program (backward "
+               "included); XLA's cost analysis is shown beside it but not used (on GPU it leaves out cuBLAS "
+               "calls). Achieved GFLOP/s = counted FLOPs / measured step time.\n")
+    rows = [[n, _f(c["train"]["ffjax"]["gflop_per_step"]), _f(c["train"]["ffjax"].get("gflop_per_step_xla")),
+             _f(c["train"]["ffjax"]["achieved_gflops"]),
              _f(100 * (r.get(f"train_{n}_fraction_of_peak") or float("nan")))]
             for n, c in res.get("models", {}).items() if c.get("train")]
-    out.append(md_table(["case", "GFLOP/step (XLA)", "achieved GFLOP/s", "% of matmul peak"], rows))
+    out.append(md_table(["case", "GFLOP/step (counted)", "GFLOP/step (XLA)", "achieved GFLOP/s",
+                         "% of matmul peak"], rows))
     p = res.get("profile")
     if p:
         ph = p["phases"]
@@ -151,12 +172,16 @@ def report(res: dict) -> str:
         out.append(md_table(["pipeline", "batches/s", "img/s", "x train consumption", "first batch s"],
                             [[k, _f(v["batches_s"]), _f(v["img_s"]), _f(v["ratio_to_train_consumption"], 1),
                               _f(v["first_batch_s"], 2)] for k, v in pipe.items() if isinstance(v, dict)]))
-        lo = d["loop_overhead"]
-        out.append(f"\nIn the loop (next(it) + train_step, sharing the cores): fixed batch "
-                   f"{_f(lo['fixed_batch']['ms_per_step'])} ms/step, in-memory "
-                   f"{_f(lo['in_memory']['ms_per_step'])} ms ({_f(100 * lo['in_memory']['overhead'])}% overhead), "
-                   f"streaming {_f(lo['streaming_w0']['ms_per_step'])} ms "
-                   f"({_f(100 * lo['streaming_w0']['overhead'])}%).\n")
+        le = d.get("loop_efficiency") or {}
+        if le:
+            out.append("\nThe training loop (`ffjax.train.loop.train`: data, logs, checkpoints, validation) against "
+                       "its own jitted step on one ready batch, over the same steps (compilation excluded):\n\n")
+            out.append(md_table(
+                ["val_every (epochs)", "steps", "steps/epoch", "loop ms/step", "pure step ms", "efficiency",
+                 "efficiency without evaluation", "evaluation share"],
+                [[v["val_every"], v["steps"], v["steps_per_epoch"], _f(v["loop_ms"]), _f(v["pure_ms"]),
+                  _f(v["efficiency"], 3), _f(v["efficiency_training"], 3), _f(v["eval_share"], 3)]
+                 for v in le.values()]))
     sc = res.get("scaling")
     if sc:
         out.append("\n## 5. Scaling (quick ViT dino_rd train step; memory = XLA's compiled peak)\n")

@@ -3,7 +3,8 @@
 Self-contained (torch + numpy only, no ffjax import) so it also runs as a subprocess under another
 interpreter: `python experiments/bench_torch.py --serve` answers one JSON request per stdin line with one
 JSON line (requests: {"op": "info"}, {"op": "peak", "n": 2048}, {"op": "train"|"infer", "arch": {...},
-"batch": B, "warmup": w, "steps": k, "rounds": r}). `arch` is what `experiments.bench.arch_of` writes:
+"batch": B, "warmup": w, "steps": k, "rounds": r}; any request may add "device": "cuda" and, for train/infer,
+"compile": true for torch.compile). `arch` is what `experiments.bench.arch_of` writes:
 backbone "vit"|"resnet" with its config, regressor widths, decoder {kind, channels} or None, input_size,
 beta. Needs the optional extra: `pip install torch==2.13.0` (CPU build).
 """
@@ -227,6 +228,31 @@ class ForceModel(nn.Module):
 
 
 # ---------------------------------------------------------------- timing
+def _device(req: dict) -> torch.device:
+    """req["device"]: "cpu" (default) or "cuda". On CUDA float32 matmuls and convs run in TF32, which is what
+    XLA's default precision does on the same GPU, so both sides are timed at the same precision."""
+    dev = torch.device(req.get("device", "cpu"))
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise RuntimeError("device cuda requested but torch.cuda.is_available() is False")
+        torch.backends.cuda.matmul.allow_tf32 = True
+        torch.backends.cudnn.allow_tf32 = True
+    return dev
+
+
+def _synced(fn, dev: torch.device):
+    """fn followed by a device sync: CUDA kernels run asynchronously, a timer must wait for them."""
+    if dev.type != "cuda":
+        return fn
+
+    def run():
+        out = fn()
+        torch.cuda.synchronize(dev)
+        return out
+
+    return run
+
+
 def _median_ms(fn, warmup: int, steps: int, rounds: int) -> tuple[float, list[float]]:
     for _ in range(warmup):
         fn()
@@ -239,25 +265,35 @@ def _median_ms(fn, warmup: int, steps: int, rounds: int) -> tuple[float, list[fl
     return statistics.median(per), per
 
 
+def _first_call_s(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
 def count_params(model: nn.Module) -> int:
     return int(sum(p.numel() for p in model.parameters()))
 
 
-def measure_train(arch: dict, batch: int, warmup: int, steps: int, rounds: int, lrs=(1e-4, 5e-4)) -> dict:
-    """Adam (backbone lr, heads lr), loss = L1(force) + beta * MSE(depth): one step = fwd + bwd + update."""
+def measure_train(arch: dict, batch: int, warmup: int, steps: int, rounds: int, lrs=(1e-4, 5e-4),
+                  device: str = "cpu", compile: bool = False) -> dict:
+    """Adam (backbone lr, heads lr), loss = L1(force) + beta * MSE(depth): one step = fwd + bwd + update.
+    compile=True runs the model under torch.compile (its first call, compile_s, pays the compilation)."""
     torch.manual_seed(0)
-    model = ForceModel(arch).train()
+    dev = _device({"device": device})
+    model = ForceModel(arch).train().to(dev)
+    fwd = torch.compile(model) if compile else model
     s = arch["input_size"]
-    x = torch.randn(batch, 3, s, s)
-    f = torch.randn(batch, 3)
-    d = torch.rand(batch, s, s)
+    x = torch.randn(batch, 3, s, s, device=dev)
+    f = torch.randn(batch, 3, device=dev)
+    d = torch.rand(batch, s, s, device=dev)
     heads = [p for n, p in model.named_parameters() if not n.startswith("backbone.")]
     opt = torch.optim.Adam([{"params": model.backbone.parameters(), "lr": lrs[0]}, {"params": heads, "lr": lrs[1]}])
     beta = float(arch.get("beta", 0.0))
 
     def step():
         opt.zero_grad(set_to_none=True)
-        out = model(x)
+        out = fwd(x)
         loss = F.l1_loss(out["force"], f)
         if beta and "depth" in out:
             loss = loss + beta * F.mse_loss(out["depth"], d)
@@ -265,38 +301,52 @@ def measure_train(arch: dict, batch: int, warmup: int, steps: int, rounds: int, 
         opt.step()
         return loss
 
+    step = _synced(step, dev)
+    compile_s = _first_call_s(step)
     ms, per = _median_ms(step, warmup, steps, rounds)
-    return {"ms": ms, "ms_rounds": per, "img_s": batch / ms * 1e3, "params": count_params(model), "batch": batch}
+    return {"ms": ms, "ms_rounds": per, "img_s": batch / ms * 1e3, "params": count_params(model), "batch": batch,
+            "device": str(dev), "mode": "compile" if compile else "eager", "compile_s": compile_s}
 
 
-def measure_infer(arch: dict, batch: int, warmup: int, steps: int, rounds: int) -> dict:
+def measure_infer(arch: dict, batch: int, warmup: int, steps: int, rounds: int, device: str = "cpu",
+                  compile: bool = False) -> dict:
     """Force only (what a control loop needs: the depth head is not run), eval mode, inference_mode."""
     torch.manual_seed(0)
-    model = ForceModel(arch).eval()
+    dev = _device({"device": device})
+    model = ForceModel(arch).eval().to(dev)
+    fwd = torch.compile(model) if compile else model
     s = arch["input_size"]
-    x = torch.randn(batch, 3, s, s)
+    x = torch.randn(batch, 3, s, s, device=dev)
     with torch.inference_mode():
-        ms, per = _median_ms(lambda: model(x, depth=False), warmup, steps, rounds)
-    return {"ms": ms, "ms_rounds": per, "img_s": batch / ms * 1e3, "params": count_params(model), "batch": batch}
+        run = _synced(lambda: fwd(x, depth=False), dev)
+        compile_s = _first_call_s(run)
+        ms, per = _median_ms(run, warmup, steps, rounds)
+    return {"ms": ms, "ms_rounds": per, "img_s": batch / ms * 1e3, "params": count_params(model), "batch": batch,
+            "device": str(dev), "mode": "compile" if compile else "eager", "compile_s": compile_s}
 
 
-def matmul_peak(n: int = 2048, rounds: int = 5) -> dict:
-    a, b = torch.randn(n, n), torch.randn(n, n)
-    ms, per = _median_ms(lambda: a @ b, 1, 1, rounds)
+def matmul_peak(n: int = 2048, rounds: int = 5, device: str = "cpu") -> dict:
+    dev = _device({"device": device})
+    a, b = torch.randn(n, n, device=dev), torch.randn(n, n, device=dev)
+    ms, per = _median_ms(_synced(lambda: a @ b, dev), 1, 1, rounds)
     return {"n": n, "ms": ms, "gflops": 2 * n**3 / (min(per) * 1e-3) / 1e9,
-            "gflops_median": 2 * n**3 / (ms * 1e-3) / 1e9}
+            "gflops_median": 2 * n**3 / (ms * 1e-3) / 1e9, "device": str(dev)}
 
 
 def handle(req: dict) -> dict:
     torch.set_num_threads(int(req.get("threads", THREADS)))
-    op = req["op"]
+    op, device = req["op"], req.get("device", "cpu")
     if op == "info":
-        return {"torch": torch.__version__, "threads": torch.get_num_threads(), "numpy": np.__version__}
+        out = {"torch": torch.__version__, "threads": torch.get_num_threads(), "numpy": np.__version__,
+               "cuda": torch.cuda.is_available()}
+        if torch.cuda.is_available():
+            out["cuda_device"] = torch.cuda.get_device_name(0)
+        return out
     if op == "peak":
-        return matmul_peak(int(req.get("n", 2048)), int(req.get("rounds", 5)))
+        return matmul_peak(int(req.get("n", 2048)), int(req.get("rounds", 5)), device)
     fn = {"train": measure_train, "infer": measure_infer}[op]
     return fn(req["arch"], int(req["batch"]), int(req.get("warmup", 2)), int(req.get("steps", 3)),
-              int(req.get("rounds", 3)))
+              int(req.get("rounds", 3)), device=device, compile=bool(req.get("compile", False)))
 
 
 def serve() -> None:

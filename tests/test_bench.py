@@ -17,7 +17,7 @@ TINY = {
     "vit_b14": None, "timing": (0, 1, 1), "infer_timing": (0, 1, 1), "peak_n": 128,
     "sim": {"n": {"64x64": 10}, "sizes": {"64x64": (24, 32)}}, "data": {"per_shape": 1, "batches": 2},
     "workers": (0,), "scaling": None, "dp": None, "bf16_acc": None, "profile": False,
-    "fast": ("recompile", "donation"),
+    "fast": ("recompile", "donation"), "loop": {"train": 16, "val": 8, "epochs": 2, "val_every": (1, 2)},
 }
 
 
@@ -39,20 +39,26 @@ def test_results_structure(results):
         assert key in saved, key
     assert saved["machine"]["cores"] >= 1
     case = saved["models"]["quick_vit"]
-    assert case["train"]["ffjax"]["gflop_per_step"] > 0
+    assert case["train"]["ffjax"]["gflop_per_step"] > 0 and case["train"]["ffjax"]["gflop_per_step_xla"] > 0
     assert case["train"]["ffjax"]["memory"]["peak_bytes"] > 0
     assert set(case["infer"]) == {"b1"}
     assert {"in_memory", "streaming_w0", "train_consumption_img_s"} <= set(saved["data"]["pipeline"])
+    loops = saved["data"]["loop_efficiency"]
+    assert set(loops) == {"val_every_1", "val_every_2"}
+    for v in loops.values():  # the real loop ran its 2 epochs of 4 steps, minus the 3 warm-up steps
+        assert v["steps"] == 5 and v["steps_per_epoch"] == 4 and v["eval_s"] > 0
+        assert 0 < v["efficiency"] <= v["efficiency_training"] and 0 < v["eval_share"] < 1
     for env in saved["_env"].values():
         assert 0 <= env["steal"] <= 1
     report = (out / "report.md").read_text()
-    assert "## 1. Training step" in report and "GPU part was not run" in report
+    assert "## 1. Training step" in report and "no GPU numbers in this run" in report
 
 
 def test_ratios_positive_finite(results):
     _, res = results
     r = res["ratios"]
     for key in ("train_quick_vit_fraction_of_peak", "donation_speedup", "pipeline_in_memory_over_streaming_w0",
+                "loop_efficiency_val_every_1", "loop_efficiency_training_val_every_2",
                 "target_quick_b1_fps_over_digit60"):
         assert key in r, key
     for k, v in r.items():
@@ -77,6 +83,24 @@ def test_recompile_check_detects_retrace():
     assert train.TRACE_COUNT["train"] == mid + 1 and mid - before <= 1
 
 
+def test_program_flops_counts_matmuls_and_convs_exactly():
+    import jax
+    import jax.numpy as jnp
+    x, w = jnp.ones((4, 8)), jnp.ones((8, 16))
+    assert bench_jax.program_flops(lambda x, w: x @ w, x, w) == 2 * 4 * 8 * 16
+    # the gradient of a product with respect to both operands is two more products of the same size
+    assert bench_jax.program_flops(jax.grad(lambda x, w: (x @ w).sum(), (0, 1)), x, w) == 3 * 2 * 4 * 8 * 16
+    img, k = jnp.ones((2, 3, 8, 8)), jnp.ones((5, 3, 3, 3))   # NCHW, OIHW, stride 2 -> 4x4 outputs
+    conv = lambda img, k: jax.lax.conv(img, k, (2, 2), "SAME")  # noqa: E731
+    fwd = 2 * (2 * 5 * 4 * 4) * (3 * 3 * 3)
+    assert bench_jax.program_flops(conv, img, k) == fwd
+    # input and kernel gradients of a strided conv cost what its forward does (no zeros counted)
+    assert bench_jax.program_flops(jax.grad(lambda i, k: conv(i, k).sum(), (0, 1)), img, k) == 3 * fwd
+    # scans count once per iteration
+    scanned = lambda x, w: jax.lax.scan(lambda c, _: (c @ w[:, :8], None), x, None, length=5)[0]  # noqa: E731
+    assert bench_jax.program_flops(scanned, x, w) == 5 * 2 * 4 * 8 * 8
+
+
 def test_steal_and_hlo_parsing():
     s = bench.steal_between([0] * 10, [10, 0, 5, 80, 0, 0, 0, 5, 0, 0])
     assert s["steal"] == pytest.approx(0.05) and s["busy"] == pytest.approx(0.2)
@@ -99,6 +123,24 @@ def test_report_tolerates_missing_sections(results):
     slim = {k: v for k, v in res.items() if k not in ("data", "fast", "profile", "scaling", "dp")}
     slim["ratios"] = bench_report.collect_ratios(slim)
     assert "## 6." in bench_report.report(slim)
+
+
+def test_report_names_the_device_and_torch_compile(results):
+    """A GPU run (device names as jax prints them) with torch eager and torch.compile timings."""
+    import copy
+
+    _, res = results
+    gpu = copy.deepcopy(res)
+    gpu["machine"]["devices"] = ["cuda:0"]
+    gpu["torch"] = {"torch": "2.x", "cuda": True, "cuda_device": "NVIDIA H100"}
+    t = gpu["models"]["quick_vit"]["train"]
+    t["torch"] = {"ms": 4.0, "img_s": 1000.0, "params": t["ffjax"]["params"]}
+    t["torch_compile"] = {"ms": 2.0, "img_s": 2000.0, "params": t["ffjax"]["params"]}
+    gpu["ratios"] = bench_report.collect_ratios(gpu)
+    text = bench_report.report(gpu)
+    assert "NVIDIA H100" in text and "this GPU" in text and "torch.compile img/s" in text
+    assert gpu["ratios"]["train_quick_vit_ffjax_over_torch_compile"] == 2.0 / t["ffjax"]["ms"]
+    assert "ran on the CPU" in bench_report.report(res)
 
 
 @pytest.mark.skipif(not (_torch_python() and shutil.which(_torch_python() or "")),
