@@ -75,8 +75,8 @@ def factors(cfg: dict) -> tuple[Factor, ...]:
                "training), its radius from 4 to 40 mm (fruit are 20-37 mm), posed and loaded as the big sphere is"),
         Factor("elongation", f"bar length (mm, radius {BAR_RADIUS_MM:g} mm)", BAR_LENGTHS_MM, 0,
                f"a smooth rounded bar of radius {BAR_RADIUS_MM:g} mm (at length 0 the small sphere indenter), "
-               "0-30 mm long, posed and loaded as the small sphere is: the longest bars in training are the "
-               "cross's and the prism's 12 mm, the pad sees 20.3 x 15.2 mm, the marker and banana lie across it"),
+               "0-30 mm long, posed and loaded as the small sphere is: in training the cross's bars are 12 mm and "
+               "the prism's sharp edge 30 mm, the pad sees 20.3 x 15.2 mm, the marker and banana lie across it"),
         Factor("tilt_shear", "tilt direction turned from the shear's (deg)", TILT_TURN_DEG, 0,
                "the training sampling, except that each body's tilt (same magnitude) is turned by the level away "
                "from its shear's direction: at 0 the tool pushes along its tilted axis as in training; otherwise "
