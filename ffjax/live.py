@@ -273,13 +273,7 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
         old = signal.signal(signal.SIGUSR1, _on_usr1)
     window = None if headless else _Window()
     writer, csv_file, rows = None, None, None
-    if out is not None:
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        csv_file = open(out / "forces.csv", "w", newline="", buffering=1)  # line-buffered: a kill loses <= 1 row
-        rows = csv.writer(csv_file)
-        rows.writerow(["t", "fx", "fy", "fz", "out_of_range", "frame"]
-                      + (["fx_raw", "fy_raw", "fz_raw"] if smoother else []))
+    out = Path(out) if out is not None else None
     n_done, n_oor, skipped, pending = 0, 0, 0, []
     lat, rate, t_start, t_prev, t_first = [], None, time.perf_counter(), None, None
     empty, flagged, last_issue, stopped, error = 0, {}, "", "end", None
@@ -329,6 +323,15 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                     inst = 1.0 / max(now - t_prev, 1e-9)
                     rate = inst if rate is None else 0.9 * rate + 0.1 * inst
                 t_prev = now
+                if out is not None and rows is None:
+                    # opened at the first prediction, not before: a source that fails to open leaves an
+                    # earlier run's files as they were (and a new run moves them aside, never truncates)
+                    out.mkdir(parents=True, exist_ok=True)
+                    # line-buffered: a kill loses at most one row
+                    csv_file = open(_keep_old(out / "forces.csv", log), "w", newline="", buffering=1)
+                    rows = csv.writer(csv_file)
+                    rows.writerow(["t", "fx", "fy", "fz", "out_of_range", "frame"]
+                                  + (["fx_raw", "fy_raw", "fz_raw"] if smoother else []))
                 if rows is not None:
                     rows.writerow([f"{t_i:.4f}", *(f"{v:.5f}" for v in force), int(oor), lab]
                                   + ([f"{v:.5f}" for v in raw] if smoother else []))
@@ -339,7 +342,8 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                     vis = annotate(f_i, force, pred.force_min, pred.force_max, oor, rate)
                     if out is not None:
                         if writer is None:
-                            writer = cv2.VideoWriter(str(out / "annotated.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
+                            writer = cv2.VideoWriter(str(_keep_old(out / "annotated.mp4", log)),
+                                                     cv2.VideoWriter_fourcc(*"mp4v"),
                                                      float(fps_cap or 25.0), (vis.shape[1], vis.shape[0]))
                         writer.write(vis)
                     if window is not None:
@@ -380,6 +384,17 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
         log("no frame was predicted: the source ended before a background was taken "
             f"(warmup {warmup}, bg-frames {bg_frames})")
     return summary
+
+
+def _keep_old(path: Path, log=print) -> Path:
+    """`path`, after moving an existing file there to the first free `stem.N.suffix` (said in the log)."""
+    if path.exists():
+        n = 1
+        while (old := path.with_name(f"{path.stem}.{n}{path.suffix}")).exists():
+            n += 1
+        path.rename(old)
+        log(f"kept the previous {path.name} as {old.name}")
+    return path
 
 
 def _fmt(v) -> str:

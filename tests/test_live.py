@@ -29,14 +29,18 @@ def _read_csv(path):
         return list(csv.DictReader(f))
 
 
-def test_video_headless_writes_forces_and_annotated_video(run_dir, clip, tmp_path):
-    frames, _ = clip
+def _video(frames, path):
     h, w = frames.shape[1:3]
-    video = tmp_path / "press.mp4"
-    vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10.0, (w, h))
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 10.0, (w, h))
     for f in frames:
         vw.write(np.ascontiguousarray(f[..., ::-1]))  # VideoWriter wants BGR
     vw.release()
+    return path
+
+
+def test_video_headless_writes_forces_and_annotated_video(run_dir, clip, tmp_path):
+    frames, _ = clip
+    video = _video(frames, tmp_path / "press.mp4")
     out = tmp_path / "out"
     assert live.main(["--checkpoint", str(run_dir), "--video", str(video), "--out", str(out), "--headless",
                       "--print-every", "0"]) == 0
@@ -51,6 +55,20 @@ def test_video_headless_writes_forces_and_annotated_video(run_dir, clip, tmp_pat
     while cap.read()[0]:
         n += 1
     assert n == len(frames)
+
+
+def test_a_failed_start_keeps_the_previous_recording_and_a_new_one_moves_it_aside(run_dir, clip, tmp_path):
+    frames, _ = clip
+    video, out = _video(frames, tmp_path / "press.mp4"), tmp_path / "out"
+    args = ["--checkpoint", str(run_dir), "--out", str(out), "--headless", "--print-every", "0"]
+    assert live.main([*args, "--video", str(video)]) == 0
+    first = (out / "forces.csv").read_bytes()
+    with pytest.raises(RuntimeError, match="cannot open video"):  # a typo: nothing predicted, nothing overwritten
+        live.main([*args, "--video", str(tmp_path / "typo.mp4")])
+    assert (out / "forces.csv").read_bytes() == first
+    assert live.main([*args, "--video", str(video), "--max-frames", "2"]) == 0
+    assert (out / "forces.1.csv").read_bytes() == first and (out / "annotated.1.mp4").exists()
+    assert len(_read_csv(out / "forces.csv")) == 2
 
 
 def test_images_folder_matches_predictor_and_smooths(run_dir, clip, tmp_path):
