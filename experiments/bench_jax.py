@@ -62,6 +62,7 @@ def arch_of(cfg: dict, method: str, size: int) -> dict:
         "resnet": {"widths": list(m["resnet"]["widths"]), "blocks": list(m["resnet"]["blocks"]),
                    "stem": m["resnet"].get("stem", "imagenet")},
         "regressor": list(m["regressor"]["widths"]),
+        "feature_norm": bool(m["regressor"].get("feature_norm", False)),
         "decoder": ({"kind": m["decoder"]["kind"], "channels": list(m["decoder"]["channels"])}
                     if spec.depth_head else None),
         "input_size": size,

@@ -41,9 +41,9 @@ class WNLinear(nn.Module):
 
 
 class Regressor(nn.Module):
-    def __init__(self, dim: int, widths):
+    def __init__(self, dim: int, widths, feature_norm: bool = False):
         super().__init__()
-        layers, d = [], dim
+        layers, d = [nn.BatchNorm1d(dim, eps=1e-5, momentum=0.1)] if feature_norm else [], dim
         for w in widths:
             layers += [WNLinear(d, w), nn.LayerNorm(w, eps=1e-5), nn.GELU()]
             d = w
@@ -212,7 +212,7 @@ class ForceModel(nn.Module):
             self.backbone = ResNet(**arch["resnet"])
             grid = math.ceil(s / (8 if arch["resnet"].get("stem") == "small" else 32))  # the backbone's stride
         dim = self.backbone.dim
-        self.regressor = Regressor(dim, arch["regressor"])
+        self.regressor = Regressor(dim, arch["regressor"], arch.get("feature_norm", False))
         dec = arch.get("decoder")
         self.decoder = None
         if dec:
