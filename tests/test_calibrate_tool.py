@@ -106,6 +106,16 @@ def test_calibrate_cli_improves_and_writes_a_loadable_checkpoint(run_dir, record
     assert "must be a new folder" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("flag", [("--lr", "nan"), ("--lr", "-1"), ("--lr", "inf"), ("--batch-size", "0"),
+                                  ("--steps", "0"), ("--holdout", "1"), ("--holdout", "nan")])
+def test_calibrate_refuses_bad_flags_before_any_work(tmp_path, capsys, flag):
+    with pytest.raises(SystemExit) as e:
+        tool.main(["--checkpoint", str(tmp_path / "ck"), "--data", str(tmp_path / "d.csv"),
+                   "--out", str(tmp_path / "out"), *flag])
+    assert e.value.code == 2 and f"argument {flag[0]}" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
 def test_split_indices_seeded_and_disjoint():
     fit, hold = tool.split_indices(10, 0.2, seed=1)
     assert len(hold) == 2 and not set(fit) & set(hold) and sorted([*fit, *hold]) == list(range(10))

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -134,6 +135,27 @@ def format_report(r: dict) -> str:
     ])
 
 
+def _positive_int(text: str) -> int:
+    v = int(text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return v
+
+
+def _positive_float(text: str) -> float:
+    v = float(text)
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
+    return v
+
+
+def _fraction(text: str) -> float:
+    v = float(text)
+    if not 0 <= v < 1:  # also refuses nan
+        raise argparse.ArgumentTypeError(f"must be in [0, 1), got {text}")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m ffjax.calibrate", description=__doc__.splitlines()[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -142,10 +164,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", required=True, help="release-layout CSV (or a folder holding data.csv / shards)")
     p.add_argument("--out", required=True, help="new folder for the calibrated checkpoint")
     p.add_argument("--layers", default="last", choices=core.LAYERS)
-    p.add_argument("--steps", type=int, default=None, help="optimizer steps (default: cfg calibrate.steps)")
-    p.add_argument("--lr", type=float, default=None, help="Adam learning rate (default: cfg calibrate.lr)")
-    p.add_argument("--holdout", type=float, default=None, help="held-out fraction (default: cfg, 0.2)")
-    p.add_argument("--batch-size", type=int, default=None)
+    p.add_argument("--steps", type=_positive_int, default=None, help="optimizer steps (default: cfg calibrate.steps)")
+    p.add_argument("--lr", type=_positive_float, default=None, help="Adam learning rate (default: cfg calibrate.lr)")
+    p.add_argument("--holdout", type=_fraction, default=None, help="held-out fraction (default: cfg, 0.2)")
+    p.add_argument("--batch-size", type=_positive_int, default=None)
     p.add_argument("--background", default=None, help="no-contact frame, if not background.png beside the CSV")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--which", default="best", choices=("best", "latest"))
