@@ -5,6 +5,7 @@
     model.set_background(bg)                          # the sensor's no-contact frame, uint8 RGB (H, W, 3)
     forces = model.predict(frames)                    # (N, H, W, 3) or (H, W, 3) uint8 RGB -> (N, 3) float32 N
     model.last_out_of_range                           # (N,) bool: outside the training force range
+    model.last_nonfinite                              # (N,) bool: NaN/inf forces (corrupt weights or input)
     depth = model.predict_depth(frames)               # (N, H, W) mm, when the model has a depth head
 
 Inputs: uint8 frames, (H, W, 3) or (N, H, W, 3), channel order RGB (what `ffjax.data` reads and trains on).
@@ -77,6 +78,10 @@ RELEASE_STATS = {
 
 class ForceRangeWarning(UserWarning):
     """A prediction lies outside the force range the model was trained on."""
+
+
+class NonFiniteWarning(UserWarning):
+    """A prediction is NaN or infinite: the weights (or the input) are corrupt; never act on it."""
 
 
 class FrameWarning(UserWarning):
@@ -317,6 +322,7 @@ class Predictor:
         self.background: np.ndarray | None = None
         self.background_issues: list[str] = []
         self.last_out_of_range = np.zeros((0,), bool)
+        self.last_nonfinite = np.zeros((0,), bool)
         self.last_frame_issues = np.zeros((0,), object)
         self.last_timing: dict = {}
 
@@ -432,16 +438,17 @@ class Predictor:
     # -- outputs ---------------------------------------------------------------------------------------
     def out_of_range(self, forces) -> np.ndarray:
         """(N,) bool: any axis outside [min, max] of the training labels widened by range_margin * span;
-        zero (no contact) always counts as inside, so an unloaded sensor is not flagged."""
+        zero (no contact) always counts as inside, so an unloaded sensor is not flagged; NaN/inf is outside."""
         f = np.asarray(forces, np.float32).reshape(-1, 3)
         lo, hi = np.minimum(self.force_min, 0), np.maximum(self.force_max, 0)
         tol = self.range_margin * (hi - lo)
-        return np.any((f < lo - tol) | (f > hi + tol), axis=1)
+        return np.any((f < lo - tol) | (f > hi + tol) | ~np.isfinite(f), axis=1)
 
     def predict(self, images, bgr: bool = False) -> np.ndarray:
         """(N, H, W, 3) or (H, W, 3) uint8 -> forces (N, 3) float32 in newtons (Fx, Fy, Fz).
 
-        Sets `last_out_of_range` ((N,) bool), `last_frame_issues` ((N,) str, see preprocess) and
+        Sets `last_out_of_range` ((N,) bool, NaN/inf included), `last_nonfinite` ((N,) bool: NaN or inf, with
+        a NonFiniteWarning), `last_frame_issues` ((N,) str, see preprocess) and
         `last_timing` (preprocess_s, model_s); warns with ForceRangeWarning when a prediction is outside the
         training range and FrameWarning for flagged frames. Flagged frames still get forces (a control loop
         decides what to do with them); only inputs that can never work raise."""
@@ -451,7 +458,11 @@ class Predictor:
         forces = np.asarray(self._force_fn(self.variables, x), np.float32)
         self.last_timing = {"preprocess_s": t1 - t0, "model_s": time.perf_counter() - t1}
         self.last_out_of_range = self.out_of_range(forces)
-        if self.last_out_of_range.any():
+        self.last_nonfinite = ~np.isfinite(forces).all(axis=1)
+        if self.last_nonfinite.any():
+            warnings.warn("non-finite (NaN/inf) forces: the checkpoint's weights or the input are corrupt; do not "
+                          "act on them (see last_nonfinite)", NonFiniteWarning, stacklevel=2)
+        elif self.last_out_of_range.any():
             # a constant message: Python's default filter then shows it once, not every frame
             lo, hi = ([round(float(v), 3) for v in r] for r in (self.force_min, self.force_max))
             warnings.warn(f"predictions outside the training force range {lo}..{hi} N (see last_out_of_range)",

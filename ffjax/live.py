@@ -205,6 +205,10 @@ def annotate(frame_rgb, force, force_min, force_max, out_of_range=False, rate=No
     canvas = np.zeros((H, W + bar_w + 8, 3), np.uint8)
     canvas[:, :W] = img
     fx, fy, fz = (float(v) for v in force)
+    if not np.isfinite([fx, fy, fz]).all():  # corrupt weights: say so on the frame, draw no arrow or bar
+        cv2.putText(canvas, "NON-FINITE FORCE (corrupt weights?)", (6, int(22 * max(0.4, W / 900) / 0.5)),
+                    cv2.FONT_HERSHEY_SIMPLEX, max(0.4, W / 900), (0, 0, 255), 1, cv2.LINE_AA)
+        return canvas
     shear = max(abs(force_min[0]), abs(force_max[0]), abs(force_min[1]), abs(force_max[1]), 1e-3)
     c = (W // 2, H // 2)
     scale = 0.5 * min(W, H) / shear
@@ -305,16 +309,20 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                 with warnings.catch_warnings():  # reported per frame below (out_of_range column, flag log)
                     warnings.simplefilter("ignore", inference.ForceRangeWarning)
                     warnings.simplefilter("ignore", inference.FrameWarning)
+                    warnings.simplefilter("ignore", inference.NonFiniteWarning)
                     raw = pred.predict(f_i)[0]
                 lat.append(time.perf_counter() - p0)
                 oor = bool(pred.last_out_of_range[0])
                 issue = str(pred.last_frame_issues[0])
+                if pred.last_nonfinite[0]:
+                    issue = "non-finite force (corrupt weights or input)"
                 if issue:
                     flagged[issue] = flagged.get(issue, 0) + 1
                 if issue != last_issue:  # log changes only: a covered lens for a minute is two lines
                     log(f"frame {lab}: " + (f"{issue} (forces unreliable)" if issue else f"{last_issue} cleared"))
                     last_issue = issue
-                force = smoother(t_i, raw) if smoother is not None else raw
+                # a NaN fed to a filter would poison every later frame: NaN frames pass through unfiltered
+                force = smoother(t_i, raw) if smoother is not None and np.isfinite(raw).all() else raw
                 n_done += 1
                 n_oor += oor
                 now = time.perf_counter()
@@ -337,7 +345,8 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                                   + ([f"{v:.5f}" for v in raw] if smoother else []))
                 if print_every and n_done % print_every == 0:
                     log(f"t={t_i:9.3f}s  Fx={force[0]:+7.3f}  Fy={force[1]:+7.3f}  Fz={force[2]:+7.3f} N"
-                        + ("  [OUT OF RANGE]" if oor else "") + (f"  {rate:6.1f} Hz" if rate else ""))
+                        + ("  [NON-FINITE]" if pred.last_nonfinite[0] else "  [OUT OF RANGE]" if oor else "")
+                        + (f"  {rate:6.1f} Hz" if rate else ""))
                 if out is not None or window is not None:
                     vis = annotate(f_i, force, pred.force_min, pred.force_max, oor, rate)
                     if out is not None:
