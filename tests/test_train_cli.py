@@ -40,6 +40,13 @@ def test_val_without_csv_is_refused(tmp_path, capsys):
     assert "--val goes with --data TRAIN.csv" in capsys.readouterr().err
 
 
+def test_resume_with_nothing_to_resume_is_an_error(tmp_path, capsys):
+    """It used to start a fresh run silently (after simulating a dataset)."""
+    assert cli.main(["--preset", "smoke", "--out", str(tmp_path / "new"), "--resume"]) == 2
+    assert "nothing to resume" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
+
+
 def test_init_from_release_checkpoint(release_csvs, tmp_path):
     from ffjax.convert import __main__ as convert_cli
 

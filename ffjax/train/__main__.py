@@ -62,6 +62,12 @@ def main(argv=None) -> int:
 
     cfg = args.cfg
     spec = registry.get(args.method)
+    out = Path(args.out or Path("runs") / f"{args.preset}-{args.method}")
+    ckpts = out / "checkpoints"
+    if args.resume and not (ckpts.is_dir() and any(p.name.isdigit() for p in ckpts.iterdir())):
+        print(f"error: --resume: nothing to resume in {out} (no checkpoint in {ckpts}); drop --resume to start "
+              "a new run there", file=sys.stderr)
+        return 2
     data_dir = args.data
     if args.val and not (data_dir and str(data_dir).endswith(".csv")):
         print("error: --val goes with --data TRAIN.csv", file=sys.stderr)
@@ -83,7 +89,6 @@ def main(argv=None) -> int:
         data_dir = Path("data") / args.preset
         print(f"dataset: {data_dir} (simulated, preset {args.preset}; generated once, then reused)")
         dataset.generate(cfg, data_dir)
-    out = Path(args.out or Path("runs") / f"{args.preset}-{args.method}")
     backbone, variables = None, None
     if args.init and args.pretrained:
         print("error: give --init or --pretrained, not both", file=sys.stderr)
