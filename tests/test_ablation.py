@@ -55,6 +55,22 @@ def test_findings_compare_orderings():
     assert "DINO RD < DINO R)" in f["table1"] and "reproduces (1.0% vs 2.0%)" in f["table1"]
 
 
+def test_findings_report_ties_within_seed_noise():
+    """Identical variants and gaps inside the seeds' spread are ties, not wins; a gap beyond it is not."""
+    c = lambda m, sd=0.0, n=1: {"mean": m, "std": sd, "n": n}  # noqa: E731
+    res = {"table1": {"dino_rd": {"mean": c(6.5, 0.2, 3)}, "dino_r": {"mean": c(6.2, 0.3, 3)},
+                      "dino_f_rd": {"mean": c(11.3, 0.1, 3)}},
+           "table2": {m: {"mean": c(v), "mini-1/gel-1": c(1.0),
+                          **{tables.P.sensor_label(k): c(v) for k in tables.P.SENSORS[1:]}}
+                      for m, v in (("dino_rd", 6.7), ("dino_f_r", 12.7), ("dino_f_rd", 12.7))},
+           "table3": {}, "config": {"data": {"calib_samples": 100}}}
+    f = tables.findings(res)
+    assert "(DINO RD < DINO R): tie, not resolved" in f["table1"]
+    assert "(DINO RD < DINO_F RD): reproduces" in f["table1"]
+    assert "DINO_F R) is worst: tie, not resolved" in f["table2"]
+    assert "DINO RD has the lowest mean: reproduces" in f["table2"]
+
+
 def test_unknown_method_fails_before_work(tmp_path):
     with pytest.raises(KeyError, match="unknown method"):
         ablation.main(["--preset", "smoke", "--methods", "nope", "--out", str(tmp_path)])
