@@ -8,6 +8,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -18,9 +19,18 @@ import configs
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def prog() -> str | None:
+    """`python -m package.module` for the running module, so usage lines show the command users type
+    (argparse would print the file name, e.g. `ablation.py`); None outside `python -m`."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    return f"python -m {spec.name}" if spec is not None and spec.name else None
+
+
 def base_parser(description: str, default_preset: str = "quick") -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=description)
-    ap.add_argument("--preset", default=default_preset, choices=configs.PRESETS)
+    ap = argparse.ArgumentParser(prog=prog(), description=description)
+    ap.add_argument("--preset", default=default_preset, choices=configs.PRESETS,
+                    help=f"size of data, models and training (default: {default_preset}; smoke: a minute or two, "
+                         "numbers meaningless)")
     ap.add_argument("--out", default=None, help="results folder (default: results/<experiment>-<preset>)")
     ap.add_argument("--data", default=None, help="dataset folder (default: data/<preset>, made if missing)")
     ap.add_argument("--force", action="store_true", help="redo cached stages even when their config matches")

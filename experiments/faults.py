@@ -34,7 +34,7 @@ DATA_SET = ("data.train_per_indenter=16", "data.shard_size=16")
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
+    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
     ap.add_argument("--preset", default="smoke", choices=("smoke", "quick"))
     ap.add_argument("--kills", type=int, default=5, help="SIGKILLs per part (default 5)")
     ap.add_argument("--out", default=None, help="results folder (default: results/faults-<preset>)")

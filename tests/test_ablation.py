@@ -71,6 +71,15 @@ def test_findings_report_ties_within_seed_noise():
     assert "DINO RD has the lowest mean: reproduces" in f["table2"]
 
 
+def test_usage_names_the_command_users_type():
+    import subprocess
+    import sys
+
+    p = subprocess.run([sys.executable, "-m", "experiments.ablation", "--help"], capture_output=True, text=True,
+                       check=True)
+    assert p.stdout.startswith("usage: python -m experiments.ablation") and "default: quick" in p.stdout
+
+
 def test_unknown_method_fails_before_work(tmp_path):
     with pytest.raises(KeyError, match="unknown method"):
         ablation.main(["--preset", "smoke", "--methods", "nope", "--out", str(tmp_path)])

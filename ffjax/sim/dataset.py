@@ -391,7 +391,8 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
 def main(argv=None):
     import configs
 
-    ap = argparse.ArgumentParser(description="Write every synthetic split (train/val/unseen/sensor/calib).")
+    ap = argparse.ArgumentParser(prog="python -m ffjax.sim.dataset",
+                                 description="Write every synthetic split (train/val/unseen/sensor/calib).")
     ap.add_argument("--preset", default="quick", choices=configs.PRESETS)
     ap.add_argument("--out", required=True)
     ap.add_argument("--force", action="store_true", help="delete a dataset made with another config")

@@ -72,7 +72,8 @@ def make(out: str, size=None) -> list[str]:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m ffjax.sim.gallery", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", required=True)
     ap.add_argument("--size", type=int, nargs=2, default=None, metavar=("H", "W"),
                     help="render size (default native)")
