@@ -104,6 +104,10 @@ def ensure_data(cfg: dict, data_dir=None, force: bool = False, progress: bool = 
     from ffjax.sim import dataset
 
     root = Path(data_dir or ROOT / "data" / cfg["preset"]).absolute()
+    if not (root / "manifest.json").exists():
+        # a mistyped --data would otherwise quietly cost a whole simulation
+        print(f"note: no dataset at {root}: simulating the {cfg['preset']} preset's dataset there (first use; reused "
+              "after). Interrupt now if the path is a typo.", file=sys.stderr, flush=True)
     dataset.generate(cfg, root, force=force, progress=progress)
     return root
 

@@ -80,6 +80,15 @@ def test_usage_names_the_command_users_type():
     assert p.stdout.startswith("usage: python -m experiments.ablation") and "default: quick" in p.stdout
 
 
+def test_a_new_data_folder_is_announced(tmp_path, capsys, monkeypatch):
+    from experiments import common
+    from ffjax.sim import dataset
+
+    monkeypatch.setattr(dataset, "generate", lambda *a, **k: None)
+    common.ensure_data({"preset": "smoke"}, tmp_path / "typo", progress=False)
+    assert f"no dataset at {tmp_path / 'typo'}" in capsys.readouterr().err
+
+
 def test_unknown_method_fails_before_work(tmp_path):
     with pytest.raises(KeyError, match="unknown method"):
         ablation.main(["--preset", "smoke", "--methods", "nope", "--out", str(tmp_path)])
