@@ -196,7 +196,7 @@ def dataset_part(preset, kills, out, ref, env, rng, progress) -> dict:
 
 def _train_cmd(preset: str, data: Path, folder: Path, epochs: int) -> list[str]:
     return [sys.executable, "-m", "ffjax.train", "--preset", preset, "--method", TRAIN_METHOD, "--data", str(data),
-            "--out", str(folder), "--resume", "--quiet", "--set", f"train.epochs={epochs}", "--set",
+            "--out", str(folder), "--resume=auto", "--quiet", "--set", f"train.epochs={epochs}", "--set",
             "train.ckpt_every=3"]
 
 

@@ -40,11 +40,16 @@ def test_val_without_csv_is_refused(tmp_path, capsys):
     assert "--val goes with --data TRAIN.csv" in capsys.readouterr().err
 
 
-def test_resume_with_nothing_to_resume_is_an_error(tmp_path, capsys):
+def test_resume_with_nothing_to_resume_is_an_error(release_csvs, tmp_path, capsys):
     """It used to start a fresh run silently (after simulating a dataset)."""
     assert cli.main(["--preset", "smoke", "--out", str(tmp_path / "new"), "--resume"]) == 2
     assert "nothing to resume" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
+    # --resume=auto is for restart loops: it starts when there is nothing to resume
+    train_csv, val_csv = release_csvs
+    assert cli.main(["--preset", "smoke", "--out", str(tmp_path / "new"), "--resume=auto", "--max-steps", "1",
+                     "--quiet", "--data", str(train_csv), "--val", str(val_csv)]) == 0
+    assert (tmp_path / "new" / "model.json").exists()
 
 
 def test_init_from_release_checkpoint(release_csvs, tmp_path):

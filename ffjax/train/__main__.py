@@ -1,5 +1,5 @@
 """`python -m ffjax.train --preset quick --method dino_rd [--data DIR | --data TRAIN.csv --val VAL.csv]
-[--out RUN] [--resume] [--pretrained DIR | --init KIND:PATH] [--set key.path=value ...]`: train one method,
+[--out RUN] [--resume[=auto]] [--pretrained DIR | --init KIND:PATH] [--set key.path=value ...]`: train one method,
 report its validation force error.
 
 Without --data the preset's simulated dataset is generated (or reused) under data/<preset>. --data may
@@ -28,7 +28,9 @@ def parse_args(argv=None):
     ap.add_argument("--skip-bad-rows", action="store_true", help="CSV data: drop rows whose files or FT cells "
                     "are bad (count and first reasons logged) instead of stopping at the first one")
     ap.add_argument("--out", help="run folder (default: runs/<preset>-<method>)")
-    ap.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
+    ap.add_argument("--resume", nargs="?", const="yes", choices=("yes", "auto"), default=None,
+                    help="continue the run in --out from its latest checkpoint (an error if it has none); "
+                    "--resume=auto: continue if there is a checkpoint, else start (for restart-on-failure loops)")
     ap.add_argument("--pretrained", help="pretrained backbone folder (python -m ffjax.train.pretrain --out DIR)")
     ap.add_argument("--init", metavar="KIND:PATH", help="start from weights: dinov2:FILE|DIR, resnet18:FILE|DIR, "
                     "feelanyforce:FILE|DIR (the release checkpoint), pretrained:DIR")
@@ -64,10 +66,12 @@ def main(argv=None) -> int:
     spec = registry.get(args.method)
     out = Path(args.out or Path("runs") / f"{args.preset}-{args.method}")
     ckpts = out / "checkpoints"
-    if args.resume and not (ckpts.is_dir() and any(p.name.isdigit() for p in ckpts.iterdir())):
+    has_ckpt = ckpts.is_dir() and any(p.name.isdigit() for p in ckpts.iterdir())
+    if args.resume == "yes" and not has_ckpt:
         print(f"error: --resume: nothing to resume in {out} (no checkpoint in {ckpts}); drop --resume to start "
-              "a new run there", file=sys.stderr)
+              "a new run there (or --resume=auto to start when there is none)", file=sys.stderr)
         return 2
+    resume = bool(args.resume)  # train() starts from step 0 when a killed run had not saved yet
     data_dir = args.data
     if args.val and not (data_dir and str(data_dir).endswith(".csv")):
         print("error: --val goes with --data TRAIN.csv", file=sys.stderr)
@@ -105,7 +109,7 @@ def main(argv=None) -> int:
         from ffjax.train.pretrain import load_backbone
 
         backbone = load_backbone(args.pretrained)
-    elif spec.pretrained and not args.resume:
+    elif spec.pretrained and not (resume and has_ckpt):
         print(
             f"note: {spec.name} expects a pretrained backbone; none given (--pretrained DIR), "
             "so it starts from random init",
@@ -118,7 +122,7 @@ def main(argv=None) -> int:
             spec,
             data_dir,
             out,
-            resume=args.resume,
+            resume=resume,
             init_backbone=backbone,
             init_variables=variables,
             max_steps=args.max_steps,

@@ -83,7 +83,7 @@ def test_sigkill_twice_then_resume_equals_uninterrupted(data, reference, tmp_pat
     best checkpoint, validation metrics and every logged loss are bitwise those of an uninterrupted run."""
     run = tmp_path / "run"
     cmd = [sys.executable, "-m", "ffjax.train", "--preset", "smoke", "--method", METHOD, "--data", str(data),
-           "--out", str(run), "--resume", "--quiet", "--set", "train.epochs=3", "--set", "train.ckpt_every=3"]
+           "--out", str(run), "--resume=auto", "--quiet", "--set", "train.epochs=3", "--set", "train.ckpt_every=3"]
     env = _env(tmp_path)
     seen = []
     for _ in range(2):
