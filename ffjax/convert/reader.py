@@ -174,8 +174,16 @@ class _Archive:
         self.storages: dict[str, _Storage] = {}
 
     def storage_bytes(self, key: str, dtype: np.dtype) -> np.ndarray:
+        name = f"{self.prefix}data/{key}"
         try:
-            raw = self.zip.read(f"{self.prefix}data/{key}")
+            declared, on_disk = self.zip.getinfo(name).file_size, self.path.stat().st_size
+        except KeyError:
+            declared, on_disk = 0, 1
+        if declared > on_disk:  # torch stores storages uncompressed: more bytes than the file is a zip bomb
+            raise ValueError(f"{self.path}: tensor storage data/{key} declares {declared:,} bytes, more than the "
+                             f"whole file ({on_disk:,} bytes); corrupt or crafted, refusing to inflate it")
+        try:
+            raw = self.zip.read(name)
         except (KeyError, zipfile.BadZipFile, EOFError, OSError) as e:
             raise ValueError(f"{self.path}: tensor storage data/{key} is missing or unreadable ({e}); the file is "
                              "partial or corrupt (an interrupted download or copy?)") from e

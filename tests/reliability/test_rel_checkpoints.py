@@ -95,6 +95,12 @@ def test_unknown_method_is_refused(run, tmp_path):
         train.load_checkpoint(dst)
 
 
+# protocol 2, by hand: OrderedDict w -> _rebuild_tensor_v2(<persistent storage "0">, 0, (4,), (1,), False)
+_ONE_TENSOR_PKL = (b"\x80\x02ccollections\nOrderedDict\n)RX\x01\x00\x00\x00wctorch._utils\n_rebuild_tensor_v2\n(("
+                   b"X\x07\x00\x00\x00storagectorch\nFloatStorage\nX\x01\x00\x00\x000X\x03\x00\x00\x00cpuK\x04tQ"
+                   b"K\x00K\x04\x85K\x01\x85\x89tRs.")
+
+
 def _torch_zip(path, pkl: bytes, storages: dict | None = None):
     with zipfile.ZipFile(path, "w") as zf:
         zf.writestr("archive/data.pkl", pkl)
@@ -134,13 +140,20 @@ def test_partial_torch_and_safetensors_files_are_refused(tmp_path):
         reader.load(st)
 
 
+def test_torch_storage_larger_than_its_file_is_refused_before_inflating(tmp_path):
+    """A small .pth whose deflated storage inflates to far more than the file (torch never compresses)."""
+    path = tmp_path / "bomb.pth"
+    _torch_zip(path, _ONE_TENSOR_PKL)
+    with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("archive/data/0", bytes(32 << 20))  # 32 MiB of zeros: ~32 KiB on disk
+    assert path.stat().st_size < 1 << 20
+    with pytest.raises(ValueError, match=r"bomb\.pth.*data/0 declares 33,554,432 bytes, more than the whole file"):
+        reader.read_state_dict(path)
+
+
 def test_torch_file_missing_a_storage_is_refused(tmp_path):
     """A zip whose pickle names a tensor storage that is not in the archive (a partial re-pack)."""
-    # protocol 2, by hand: OrderedDict w -> _rebuild_tensor_v2(<persistent storage "0">, 0, (4,), (1,), False)
-    pkl = (b"\x80\x02ccollections\nOrderedDict\n)RX\x01\x00\x00\x00wctorch._utils\n_rebuild_tensor_v2\n(("
-           b"X\x07\x00\x00\x00storagectorch\nFloatStorage\nX\x01\x00\x00\x000X\x03\x00\x00\x00cpuK\x04tQ"
-           b"K\x00K\x04\x85K\x01\x85\x89tRs.")
     path = tmp_path / "partial.pth"
-    _torch_zip(path, pkl)
+    _torch_zip(path, _ONE_TENSOR_PKL)
     with pytest.raises(ValueError, match=r"partial\.pth.*data/0 is missing"):
         reader.read_state_dict(path)
