@@ -234,6 +234,9 @@ def _lookup(cfg: dict, dotted: str):
     return node
 
 
+MIN_RENDER = 16  # px: the pad is ~20 x 15 mm, so a 4 mm contact still spans ~3 pixels
+
+
 def _cross_checks(cfg: dict) -> list[str]:
     """Rules between keys: shapes that cannot fit together."""
     errs = []
@@ -241,6 +244,10 @@ def _cross_checks(cfg: dict) -> list[str]:
     if _is_num(size) and _is_num(patch) and patch > 0 and size % patch:
         errs.append(f"data.input_size ({size}) must be divisible by model.vit.patch ({patch}): the ViT cuts "
                     f"the input into {patch}x{patch} patches")
+    render = _lookup(cfg, "data.render_size")
+    if isinstance(render, (list, tuple)) and all(_is_num(v) for v in render) and min(render) < MIN_RENDER:
+        errs.append(f"data.render_size ({tuple(render)}) must be at least {MIN_RENDER} px on each side: smaller, "
+                    "a contact covers less than a pixel and the depth targets are all zero")
     dim, heads = _lookup(cfg, "model.vit.dim"), _lookup(cfg, "model.vit.heads")
     if _is_num(dim) and _is_num(heads) and heads > 0 and dim % heads:
         errs.append(f"model.vit.dim ({dim}) must be divisible by model.vit.heads ({heads})")

@@ -35,15 +35,24 @@ BACKGROUND_NAME = "background.png"
 
 
 def read_rgb(path: str | os.PathLike, what: str = "image") -> np.ndarray:
-    """Read a colour image as RGB uint8; a missing, unreadable or truncated file raises DataError."""
+    """Read a colour image as RGB uint8 (an alpha channel is dropped). A missing, unreadable or truncated
+    file raises DataError, and so do images a colour sensor never writes: more than 8 bits per channel
+    (decoding would silently drop the low bits: 12-bit data in 16 bits would read as a near-black frame) and
+    grayscale (it would become three equal channels, a colour the model never saw)."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"missing {what}: {path}")
     raw = np.fromfile(path, dtype=np.uint8)
-    img = cv2.imdecode(raw, cv2.IMREAD_COLOR) if raw.size else None
+    img = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED) if raw.size else None
     if img is None:
         raise DataError(f"unreadable or truncated {what}: {path}")
-    return np.ascontiguousarray(img[..., ::-1])  # cv2 decodes to BGR
+    if img.dtype != np.uint8:
+        raise DataError(f"{what} {path} has {img.dtype} pixels, not 8-bit: convert it to 8 bits per channel "
+                        "first (for 12-bit data in 16-bit files, scale by 255/4095), as the training frames are")
+    if img.ndim == 2 or img.shape[2] == 1:
+        raise DataError(f"{what} {path} is grayscale: this model reads colour (RGB) frames of a tactile sensor; "
+                        "record or export the frames in colour")
+    return np.ascontiguousarray(img[..., 2::-1])  # cv2 decodes to BGR(A): RGB, alpha dropped
 
 
 def write_rgb(path: str | os.PathLike, image: np.ndarray) -> None:

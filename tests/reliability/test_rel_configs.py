@@ -31,6 +31,7 @@ def test_cli_overrides_unknown_keys_and_wrong_types(override, fragment):
     ("data.fz_max", -1.0, "data.fz_max must be > 0"),
     ("data.shear_max", -0.5, "data.shear_max must be >= 0"),
     ("data.render_size", (0, 32), "data.render_size item 0 must be >= 1"),
+    ("data.render_size", (2, 2), r"data.render_size \(\(2, 2\)\) must be at least 16 px"),
     ("train.batch_size", 0, "train.batch_size must be >= 1"),
     ("train.epochs", 0, "train.epochs must be >= 1"),
     ("train.lr_backbone", 0.0, "train.lr_backbone must be > 0"),

@@ -97,6 +97,9 @@ def _truncate(path, keep=0.5):
     (lambda d: (d / "tactile/002.png").write_bytes(b""), r"empty tactile image .*002\.png"),
     (lambda d: cv2.imwrite(str(d / "tactile/002.png"), np.zeros((H + 2, W, 3), np.uint8)),
      r"002\.png is 14x16 px, the background is 12x16 px"),
+    (lambda d: cv2.imwrite(str(d / "tactile/002.png"), np.full((H, W, 3), 1500, np.uint16)),
+     r"002\.png has uint16 pixels, not 8-bit"),
+    (lambda d: cv2.imwrite(str(d / "tactile/002.png"), np.full((H, W), 100, np.uint8)), r"002\.png is grayscale"),
     (lambda d: (d / "depth/002.npy").unlink(), r"missing depth file .*002\.npy"),
     (lambda d: _truncate(d / "depth/002.npy", 0.3), r"unreadable depth file .*002\.npy"),
     (lambda d: np.save(d / "depth/002.npy", np.zeros((H, W + 1))), r"depth file .*002\.npy is \(12, 17\)"),
@@ -107,6 +110,13 @@ def test_bad_files_fail_on_open_when_validating(split, damage, why):
     data.open_split(split)  # cell checks only: opens, the row fails when read
     with pytest.raises(data.DataError, match=rf"data\.csv row 2 \(line 4\): .*{why}"):
         data.open_split(split, validate=True)
+
+
+def test_an_alpha_channel_is_dropped(tmp_path):
+    rgba = np.zeros((H, W, 4), np.uint8)
+    rgba[..., 0], rgba[..., 1], rgba[..., 2], rgba[..., 3] = 10, 20, 30, 255  # BGRA on disk
+    cv2.imwrite(str(tmp_path / "a.png"), rgba)
+    assert (data.sources.read_rgb(tmp_path / "a.png") == [30, 20, 10]).all()
 
 
 def test_load_time_errors_name_row_and_file(split):
