@@ -176,4 +176,8 @@ def evaluate_run(cfg: dict, run_dir: Path, data_root: Path, force: bool) -> dict
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

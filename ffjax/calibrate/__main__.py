@@ -5,4 +5,6 @@ import sys
 from ffjax.calibrate.tool import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

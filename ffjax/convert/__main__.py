@@ -72,4 +72,6 @@ def _run(a: argparse.Namespace) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from ffjax import cli
+
+    sys.exit(cli.run(main))
