@@ -68,10 +68,11 @@ def test_backbone_folder_per_size(tmp_path, monkeypatch):
 
 @pytest.fixture(scope="module")
 def smoke(tmp_path_factory):
-    out = tmp_path_factory.mktemp("pareto") / "out"
-    # The default data folder (data/smoke) is the preset's shared cache: generated once, reused by every run.
+    root = tmp_path_factory.mktemp("pareto")
+    out = root / "out"
+    # its own data folder: tests never write into the user's data/smoke
     pareto.main(["--preset", "smoke", "--methods", METHOD, "--sizes", "vit-xs", "vit-s", "--out", str(out),
-                 "--ablation", "none", "--quiet"])
+                 "--ablation", "none", "--data", str(root / "data"), "--quiet"])
     return out
 
 
