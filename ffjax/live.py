@@ -28,6 +28,7 @@ summary counts drops, reconnects and flagged frames.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import signal
 import sys
@@ -40,6 +41,7 @@ import cv2
 import numpy as np
 
 from ffjax import inference, live_filters
+from ffjax.runlock import folder_lock
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
@@ -278,6 +280,7 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
     window = None if headless else _Window()
     writer, csv_file, rows = None, None, None
     out = Path(out) if out is not None else None
+    lock = contextlib.ExitStack()
     n_done, n_oor, skipped, pending = 0, 0, 0, []
     lat, rate, t_start, t_prev, t_first = [], None, time.perf_counter(), None, None
     empty, flagged, last_issue, stopped, error = 0, {}, "", "end", None
@@ -333,8 +336,9 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                 t_prev = now
                 if out is not None and rows is None:
                     # opened at the first prediction, not before: a source that fails to open leaves an
-                    # earlier run's files as they were (and a new run moves them aside, never truncates)
-                    out.mkdir(parents=True, exist_ok=True)
+                    # earlier run's files as they were (and a new run moves them aside, never truncates);
+                    # one live loop per --out (a second would move the first's files aside mid-run)
+                    lock.enter_context(folder_lock(out, "live recording"))
                     # line-buffered: a kill loses at most one row
                     csv_file = open(_keep_old(out / "forces.csv", log), "w", newline="", buffering=1)
                     rows = csv.writer(csv_file)
@@ -376,6 +380,7 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
             writer.release()
         if csv_file is not None:
             csv_file.close()
+        lock.close()
         if window is not None:
             window.close()
         if old is not None:

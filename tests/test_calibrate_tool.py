@@ -7,7 +7,7 @@ import _smoke_run
 import numpy as np
 import pytest
 
-from ffjax import data, inference
+from ffjax import cli, data, inference
 from ffjax.calibrate import record, tool
 
 
@@ -104,6 +104,14 @@ def test_calibrate_cli_improves_and_writes_a_loadable_checkpoint(run_dir, record
     assert tool.main(argv) == 2
     assert tool.main(["--checkpoint", str(run_dir), "--data", str(path), "--out", str(run_dir / "x")]) == 2
     assert "must be a new folder" in capsys.readouterr().err
+    # a second calibration into a folder another one is writing stops, naming the holder
+    from ffjax.runlock import folder_lock
+
+    with folder_lock(tmp_path / "c3", "calibration"):
+        assert cli.run(tool.main, ["--checkpoint", str(run_dir), "--data", str(path), "--out", str(tmp_path / "c3"),
+                          "--steps", "1", "--layers", "regressor"]) == 1
+    assert "is in use by another calibration (pid" in capsys.readouterr().err
+    assert [p.name for p in (tmp_path / "c3").iterdir()] == [".lock"]
 
 
 @pytest.mark.parametrize("flag", [("--lr", "nan"), ("--lr", "-1"), ("--lr", "inf"), ("--batch-size", "0"),

@@ -36,6 +36,7 @@ from ffjax import data as fdata
 from ffjax import inference, metrics
 from ffjax.calibrate import core
 from ffjax.data.sources import write_rgb
+from ffjax.runlock import LOCK_NAME, folder_lock
 
 
 def split_indices(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -50,7 +51,7 @@ def split_indices(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.nda
 def _check_out(out: Path, checkpoint: Path, overwrite: bool) -> None:
     if out.resolve() == checkpoint.resolve() or checkpoint.resolve() in out.resolve().parents:
         raise ValueError(f"--out {out} must be a new folder outside the checkpoint {checkpoint}")
-    if out.exists() and any(out.iterdir()) and not overwrite:
+    if out.exists() and any(p.name != LOCK_NAME for p in out.iterdir()) and not overwrite:
         raise FileExistsError(f"{out} exists and is not empty: choose a new --out (or --overwrite)")
 
 
@@ -62,57 +63,62 @@ def calibrate(checkpoint, data, out, layers: str = "last", steps: int | None = N
     if layers not in core.LAYERS:
         raise ValueError(f"--layers must be one of {core.LAYERS}, got {layers!r}")
     _check_out(out, checkpoint, overwrite)
-    ckpt = inference.read_checkpoint(checkpoint, which)
-    cc = ckpt.cfg.get("calibrate", {})
-    steps = int(cc.get("steps", 200) if steps is None else steps)
-    lr = float(cc.get("lr", 1e-4) if lr is None else lr)
-    holdout = float(cc.get("holdout", 0.2) if holdout is None else holdout)
-    batch_size = int(cc.get("batch_size", 32) if batch_size is None else batch_size)
+    # held from the start: two calibrations into one --out must not mix their files; checked again inside,
+    # since another one may have finished there between the first check and the lock
+    with folder_lock(out, "calibration"):
+        _check_out(out, checkpoint, overwrite)
+        ckpt = inference.read_checkpoint(checkpoint, which)
+        cc = ckpt.cfg.get("calibrate", {})
+        steps = int(cc.get("steps", 200) if steps is None else steps)
+        lr = float(cc.get("lr", 1e-4) if lr is None else lr)
+        holdout = float(cc.get("holdout", 0.2) if holdout is None else holdout)
+        batch_size = int(cc.get("batch_size", 32) if batch_size is None else batch_size)
 
-    source = fdata.open_split(data, background=background)
-    if len(source) == 0:
-        raise ValueError(f"{data}: no labelled frames")
-    first = source[0]
-    frame = tuple(first["image"].shape[:2])
-    if frame != tuple(ckpt.frame_size):
-        log(f"note: calibration frames are {frame[0]}x{frame[1]}, the checkpoint's {ckpt.frame_size[0]}x"
-            f"{ckpt.frame_size[1]} ({ckpt.frame_size_source}); the new checkpoint expects {frame[0]}x{frame[1]}"
-            + ("" if layers == "regressor" else ". For a different sensor type use --layers regressor"))
-    arrays = fdata.load_arrays(source, ckpt.stats, ckpt.input_size)
-    y = arrays["force"]
-    feats = core.features(ckpt.build_model(), ckpt.variables, arrays["image"], batch_size=min(64, len(y)))
-    fit, hold = split_indices(len(y), holdout, seed)
-    if len(hold) == 0:
-        log("warning: no held-out frames (holdout 0 or a single frame): errors below are on the fitting set")
-        hold = fit
-    head = ckpt.cfg["model"]["regressor"]
-    reg = jax.tree.map(np.asarray, ckpt.variables["params"]["regressor"])  # as numpy, like fit_regressor's output:
-    # predict_from_features then compiles once for both (committed device arrays would be another cache entry)
-    stats = core.regressor_stats(ckpt.variables)
-    if stats is not None:
-        stats = jax.tree.map(np.asarray, stats)
-    lo, hi = ckpt.stats.force_min, ckpt.stats.force_max
-    # predictions for all frames at once, then indexed: one compiled shape for before and after
-    before = metrics.summarize(core.predict_from_features(head, reg, feats, stats)[hold], y[hold], lo, hi)
-    new_reg = core.fit_regressor(head, reg, feats[fit], y[fit], layers=layers, steps=steps, lr=lr,
-                                 batch_size=batch_size, seed=seed, reg_stats=stats)
-    pred = core.predict_from_features(head, new_reg, feats, stats)
-    after = metrics.summarize(pred[hold], y[hold], lo, hi)
-    after_fit = metrics.summarize(pred[fit], y[fit], lo, hi)
-    before_fit = metrics.summarize(core.predict_from_features(head, reg, feats, stats)[fit], y[fit], lo, hi)
-    report = {
-        "checkpoint": str(checkpoint), "data": str(data), "layers": layers, "steps": steps, "lr": lr,
-        "batch_size": batch_size, "holdout": holdout, "seed": seed, "n": int(len(y)), "n_fit": int(len(fit)),
-        "n_holdout": int(len(hold)), "frame_size": list(frame), "force_range_used": {"min": list(lo), "max": list(hi)},
-        "holdout_before": before, "holdout_after": after, "fit_before": before_fit,
-        "fit_after": after_fit,
-        "calibration_force_range": {"min": y.min(0).tolist(), "max": y.max(0).tolist()},
-    }
-    variables = core.with_regressor(ckpt.variables, new_reg)
-    inference.save_bundle(out, ckpt, variables, frame_size=frame, calibration=report)
-    (out / "calibration.json").write_text(json.dumps(report, indent=2) + "\n")
-    bg = getattr(source, "background", None)
-    write_rgb(out / "background.png", bg if bg is not None else first["background"])
+        source = fdata.open_split(data, background=background)
+        if len(source) == 0:
+            raise ValueError(f"{data}: no labelled frames")
+        first = source[0]
+        frame = tuple(first["image"].shape[:2])
+        if frame != tuple(ckpt.frame_size):
+            log(f"note: calibration frames are {frame[0]}x{frame[1]}, the checkpoint's {ckpt.frame_size[0]}x"
+                f"{ckpt.frame_size[1]} ({ckpt.frame_size_source}); the new checkpoint expects {frame[0]}x{frame[1]}"
+                + ("" if layers == "regressor" else ". For a different sensor type use --layers regressor"))
+        arrays = fdata.load_arrays(source, ckpt.stats, ckpt.input_size)
+        y = arrays["force"]
+        feats = core.features(ckpt.build_model(), ckpt.variables, arrays["image"], batch_size=min(64, len(y)))
+        fit, hold = split_indices(len(y), holdout, seed)
+        if len(hold) == 0:
+            log("warning: no held-out frames (holdout 0 or a single frame): errors below are on the fitting set")
+            hold = fit
+        head = ckpt.cfg["model"]["regressor"]
+        # as numpy, like fit_regressor's output: predict_from_features then compiles once for both (committed
+        # device arrays would be another cache entry)
+        reg = jax.tree.map(np.asarray, ckpt.variables["params"]["regressor"])
+        stats = core.regressor_stats(ckpt.variables)
+        if stats is not None:
+            stats = jax.tree.map(np.asarray, stats)
+        lo, hi = ckpt.stats.force_min, ckpt.stats.force_max
+        # predictions for all frames at once, then indexed: one compiled shape for before and after
+        before = metrics.summarize(core.predict_from_features(head, reg, feats, stats)[hold], y[hold], lo, hi)
+        new_reg = core.fit_regressor(head, reg, feats[fit], y[fit], layers=layers, steps=steps, lr=lr,
+                                     batch_size=batch_size, seed=seed, reg_stats=stats)
+        pred = core.predict_from_features(head, new_reg, feats, stats)
+        after = metrics.summarize(pred[hold], y[hold], lo, hi)
+        after_fit = metrics.summarize(pred[fit], y[fit], lo, hi)
+        before_fit = metrics.summarize(core.predict_from_features(head, reg, feats, stats)[fit], y[fit], lo, hi)
+        report = {
+            "checkpoint": str(checkpoint), "data": str(data), "layers": layers, "steps": steps, "lr": lr,
+            "batch_size": batch_size, "holdout": holdout, "seed": seed, "n": int(len(y)), "n_fit": int(len(fit)),
+            "n_holdout": int(len(hold)), "frame_size": list(frame),
+            "force_range_used": {"min": list(lo), "max": list(hi)},
+            "holdout_before": before, "holdout_after": after, "fit_before": before_fit, "fit_after": after_fit,
+            "calibration_force_range": {"min": y.min(0).tolist(), "max": y.max(0).tolist()},
+        }
+        variables = core.with_regressor(ckpt.variables, new_reg)
+        inference.save_bundle(out, ckpt, variables, frame_size=frame, calibration=report)
+        (out / "calibration.json").write_text(json.dumps(report, indent=2) + "\n")
+        bg = getattr(source, "background", None)
+        write_rgb(out / "background.png", bg if bg is not None else first["background"])
     log(format_report(report))
     log(f"wrote {out} (python -m ffjax.live --checkpoint {out} ...)")
     return report

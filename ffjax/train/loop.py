@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ffjax import metrics as fmetrics
+from ffjax.runlock import folder_lock
 from ffjax.train.checkpoint import (
     Checkpointer,
     CheckpointError,
@@ -226,7 +227,24 @@ def _int(text):
         return None
 
 
-def train(
+def train(cfg: dict, spec, data, out_dir, resume: bool = False, init_backbone: tuple | None = None,
+          **kwargs) -> dict:
+    """Train `spec` (a registry Method or its name) with `cfg`; returns a summary dict.
+
+    data: dataset root with train/ and val/, or {"train": .., "val": ..}, or a (train, val) pair.
+    init_backbone: (params, batch_stats) from `pretrain.load_backbone` (ignored on resume: the
+    checkpoint has the weights). Keywords: init_variables (the whole model's variables to start from, e.g.
+    the FeelAnyForce release, converted), max_steps (stop early, after checkpointing; resuming continues),
+    callback(step, state) (runs after each step; may return a replacement state: tests inject faults),
+    progress, devices. The run folder is locked while training (`ffjax.runlock`): a second training into it
+    is refused with FolderLockedError naming the first.
+    """
+    run_dir = check_writable(out_dir)  # before any work: an unwritable --out fails in a second, not at step N
+    with folder_lock(run_dir, "training run"):
+        return _train(cfg, spec, data, run_dir, resume, init_backbone, **kwargs)
+
+
+def _train(
     cfg: dict,
     spec,
     data,
@@ -240,19 +258,11 @@ def train(
     progress: bool = True,
     devices=None,
 ) -> dict:
-    """Train `spec` (a registry Method or its name) with `cfg`; returns a summary dict.
-
-    data: dataset root with train/ and val/, or {"train": .., "val": ..}, or a (train, val) pair.
-    init_backbone: (params, batch_stats) from `pretrain.load_backbone` (ignored on resume: the
-    checkpoint has the weights). init_variables: the whole model's variables to start from (e.g. the
-    FeelAnyForce release, converted). max_steps stops early (after checkpointing) — resuming continues.
-    callback(step, state) runs after each step; it may return a replacement state (tests inject faults).
-    """
     from ffjax import data as fdata
     from ffjax import registry
 
     spec = registry.get(spec) if isinstance(spec, str) else spec
-    run_dir = check_writable(out_dir)  # before any work: an unwritable --out fails in a second, not at step N
+    run_dir = Path(out_dir)
     tc = cfg["train"]
     nonfinite = tc.get("nonfinite", "stop")
     if nonfinite not in NONFINITE_MODES:

@@ -166,6 +166,19 @@ def test_unwritable_output_fails_before_any_work(data, tmp_path):
         locked.chmod(0o700)
 
 
+def test_a_second_training_into_a_busy_run_folder_is_refused(data, tmp_path):
+    """Two trainings with the same --out used to interleave their logs; the second now stops at once, naming
+    the first, and leaves the folder as it was. The lock goes with its holder (no stale lock)."""
+    from ffjax.runlock import FolderLockedError, folder_lock
+
+    with folder_lock(tmp_path, "training run"):  # what a running training holds
+        busy = rf"{tmp_path} is in use by another training run \(pid {os.getpid()}"
+        with pytest.raises(FolderLockedError, match=busy):
+            train.train(_cfg(), METHOD, data, tmp_path, progress=False)
+        assert not (tmp_path / "train_log.jsonl").exists() and not (tmp_path / "model.json").exists()
+    train.train(_cfg(), METHOD, data, tmp_path, progress=False, max_steps=1)  # released: it trains
+
+
 def test_output_under_a_file_fails_before_any_work(data, tmp_path):
     """Works as root too (chmod does not bite there): the output's parent is a file, so mkdir fails."""
     (tmp_path / "file").write_text("x")

@@ -134,3 +134,14 @@ def test_cli_exits_3_with_the_csv_written(ckpt, tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert "reconnecting (up to 2 attempts)" in err and "error: camera 0 lost" in err
     assert dev.waits == [0.1, 0.2]
+
+
+def test_a_second_live_recording_into_a_busy_out_folder_is_refused(pred, tmp_path):
+    """A second live loop on the same --out would move the first one's forces.csv aside mid-recording."""
+    from ffjax.runlock import FolderLockedError, folder_lock
+
+    (tmp_path / "forces.csv").write_text("t,fx,fy,fz\n0.0,1,2,3\n")
+    with folder_lock(tmp_path, "live recording"), pytest.raises(FolderLockedError, match="another live recording"):
+        live.run(pred, iter([(0.0, BG, 0)]), out=tmp_path, background=BG, print_every=0, log=lambda m: None)
+    assert (tmp_path / "forces.csv").read_text() == "t,fx,fy,fz\n0.0,1,2,3\n"  # the holder's file untouched
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".lock", "forces.csv"]
