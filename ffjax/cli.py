@@ -7,8 +7,10 @@ the exception's own, which names the file and what to do. Set FFJAX_DEBUG=1 for 
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
+import threading
 
 USAGE, RUNTIME = 2, 1
 
@@ -23,9 +25,51 @@ def _usage_errors() -> tuple[type, ...]:
             UnsafePickleError, ValueError, KeyError)
 
 
+def _from_orbax(text: str) -> bool:
+    return "orbax" in text or "Event loop is closed" in text
+
+
+class _OneLineBackgroundErrors(logging.Filter):
+    """orbax logs a failed background write from each of its threads with a full traceback, and asyncio adds
+    one for every pending write task: one full disk printed 900-2,000 lines above the one error that matters
+    (the CheckpointWriteError that run() prints). Keep orbax's lines to one line each; drop asyncio's repeats."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.name == "asyncio":
+            return not _from_orbax(record.getMessage() + repr(record.exc_info and record.exc_info[1]))
+        if record.exc_info and "orbax" in record.pathname:
+            record.msg, record.args = record.getMessage().splitlines()[0][:300], ()
+            record.exc_info = record.exc_text = None
+        return True
+
+
+def _quiet_background_faults() -> None:
+    """Silence the echoes of one checkpoint-write failure in orbax's threads and coroutines (see
+    _OneLineBackgroundErrors); a coroutine collected at exit or a TensorStore callback into a closed event loop
+    says nothing new either. Everything else is reported as before."""
+    flt = _OneLineBackgroundErrors()
+    for name in ("absl", "asyncio"):
+        if not any(isinstance(f, _OneLineBackgroundErrors) for f in logging.getLogger(name).filters):
+            logging.getLogger(name).addFilter(flt)
+    unraisable, thread_hook = sys.unraisablehook, threading.excepthook
+
+    def quiet_unraisable(u):
+        code = getattr(u.object, "cr_code", None)
+        if not _from_orbax(f"{getattr(code, 'co_filename', '')} {u.exc_value!r}"):
+            unraisable(u)
+
+    def quiet_thread(args):
+        if not (isinstance(args.exc_value, RuntimeError) and "Event loop is closed" in str(args.exc_value)):
+            thread_hook(args)
+
+    sys.unraisablehook, threading.excepthook = quiet_unraisable, quiet_thread
+
+
 def run(main, argv=None) -> int:
     """main(argv)'s exit code (0 when it returns no int); known faults become one `error:` line on stderr
-    (FFJAX_DEBUG=1: re-raised)."""
+    (FFJAX_DEBUG=1: re-raised, and background tracebacks are kept)."""
+    if not os.environ.get("FFJAX_DEBUG"):
+        _quiet_background_faults()
     try:
         rc = main(argv)
         return rc if isinstance(rc, int) else 0

@@ -47,6 +47,7 @@ with a message; `strict_size=False` accepts any size that matches the background
 from __future__ import annotations
 
 import functools
+import hashlib
 import json
 import time
 import warnings
@@ -184,7 +185,18 @@ def _tuples(x):
 
 
 def _read_json(path: Path) -> dict | None:
-    return json.loads(path.read_text()) if path.is_file() else None
+    """The JSON object in `path` (None if there is no file); CheckpointError naming the file otherwise."""
+    from ffjax.train.checkpoint import CheckpointError
+
+    if not path.is_file():
+        return None
+    try:
+        obj = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as e:
+        raise CheckpointError(f"{path} is not valid JSON (truncated, or not written by ffjax): {e}") from e
+    if not isinstance(obj, dict):
+        raise CheckpointError(f"{path} holds a JSON {type(obj).__name__}, not an object: not written by ffjax")
+    return obj
 
 
 def _frame_size(folder: Path, info: dict, override, fallback, fallback_source: str):
@@ -224,7 +236,6 @@ def _reference_background(folder: Path, info: dict) -> dict | None:
 
 
 def _read_checkpoint(folder: Path, which: str, frame_size) -> Checkpoint:
-    from flax import serialization
 
     import configs
     from ffjax import registry
@@ -233,12 +244,7 @@ def _read_checkpoint(folder: Path, which: str, frame_size) -> Checkpoint:
         raise FileNotFoundError(f"{folder}: no such checkpoint folder")
     info = _read_json(folder / MODEL_JSON)
     if info is not None and (folder / VARIABLES).is_file():  # bundle
-        variables = serialization.msgpack_restore((folder / VARIABLES).read_bytes())
-        cfg = {**info["cfg"], "model": _tuples(info["cfg"]["model"])}
-        stats = fdata.Stats.from_dict(info["stats"])
-        fs, src = _frame_size(folder, info, frame_size, cfg["data"]["render_size"], "assumed")
-        return Checkpoint(cfg, registry.get(info["method"]), stats, variables, int(info["input_size"]), fs,
-                          src, "bundle", str(folder), info)
+        return _read_bundle(folder, info, frame_size)
     if info is not None:  # training run
         from ffjax import train
 
@@ -267,6 +273,48 @@ def _read_checkpoint(folder: Path, which: str, frame_size) -> Checkpoint:
         f"convert.json + {VARIABLES} (python -m ffjax.convert feelanyforce ...)")
 
 
+_BUNDLE_KEYS = ("method", "input_size", "stats", "cfg")
+
+
+def _read_bundle(folder: Path, info: dict, frame_size) -> Checkpoint:
+    """A calibrated/exported bundle, checked: ffjax's model.json keys, the weights' sha256 (recorded by
+    save_bundle; older bundles carry none), and every tensor's shape against the model model.json describes."""
+    from flax import serialization
+
+    from ffjax import models, registry
+    from ffjax.train.checkpoint import CheckpointError
+
+    missing = [k for k in _BUNDLE_KEYS if k not in info]
+    if missing:
+        raise CheckpointError(f"{folder / MODEL_JSON} lacks {missing}: not an ffjax model.json")
+    raw = (folder / VARIABLES).read_bytes()
+    digest = info.get("variables_sha256")
+    if digest and hashlib.sha256(raw).hexdigest() != digest:
+        raise CheckpointError(f"{folder / VARIABLES} is corrupt or truncated ({len(raw)} bytes): its sha256 differs "
+                              f"from the one in {MODEL_JSON}; copy or export the bundle again")
+    try:
+        variables = serialization.msgpack_restore(raw)
+        cfg = {**info["cfg"], "model": _tuples(info["cfg"]["model"])}
+        stats = fdata.Stats.from_dict(info["stats"])
+        spec = registry.get(info["method"])
+        size = int(info["input_size"])
+        model = models.build(cfg["model"], spec, size)
+    except Exception as e:  # noqa: BLE001 - msgpack, config and registry errors all mean one thing here
+        raise CheckpointError(f"cannot read the bundle {folder} ({type(e).__name__}: {str(e)[:200]}): "
+                              f"{VARIABLES} truncated or {MODEL_JSON} not ffjax's") from e
+    abstract = jax.eval_shape(lambda x: model.init(jax.random.PRNGKey(0), x, train=False),
+                              jax.ShapeDtypeStruct((1, size, size, 3), np.float32))
+    want = {k: abstract[k] for k in ("params", "batch_stats") if abstract.get(k)}
+    got = {k: variables.get(k) for k in want}
+    ok = jax.tree.structure(want) == jax.tree.structure(got) and all(
+        tuple(a.shape) == tuple(np.shape(b)) for a, b in zip(jax.tree.leaves(want), jax.tree.leaves(got)))
+    if not ok:
+        raise CheckpointError(f"{folder / VARIABLES} does not hold the weights of the {spec.name} model "
+                              f"{MODEL_JSON} describes (different tensors or shapes)")
+    fs, src = _frame_size(folder, info, frame_size, cfg["data"]["render_size"], "assumed")
+    return Checkpoint(cfg, spec, stats, variables, size, fs, src, "bundle", str(folder), info)
+
+
 def save_bundle(out, ckpt: Checkpoint, variables: dict | None = None, frame_size=None, background=None,
                 **extra) -> Path:
     """Write a self-contained folder (model.json + variables.msgpack) that `load` accepts.
@@ -277,10 +325,13 @@ def save_bundle(out, ckpt: Checkpoint, variables: dict | None = None, frame_size
 
     from flax import serialization
 
+    from ffjax.train.checkpoint import atomic_write_bytes, atomic_write_text
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     tree = jax.tree.map(np.asarray, ckpt.variables if variables is None else variables)
-    (out / VARIABLES).write_bytes(serialization.msgpack_serialize(tree))
+    raw = serialization.msgpack_serialize(tree)
+    atomic_write_bytes(out / VARIABLES, raw)
     info = {
         "format": BUNDLE_FORMAT,
         "method": ckpt.spec.name,
@@ -293,9 +344,10 @@ def save_bundle(out, ckpt: Checkpoint, variables: dict | None = None, frame_size
         "cfg": json.loads(json.dumps(ckpt.cfg, default=list)),
         "parent": {"path": ckpt.path, "kind": ckpt.kind},
         "background_stats": background_stats(background) if background is not None else ckpt.background_stats,
+        "variables_sha256": hashlib.sha256(raw).hexdigest(),
         **extra,
     }
-    (out / MODEL_JSON).write_text(json.dumps(info, indent=2) + "\n")
+    atomic_write_text(out / MODEL_JSON, json.dumps(info, indent=2) + "\n")
     return out
 
 

@@ -108,6 +108,9 @@ def main(argv=None) -> int:
     elif args.pretrained:
         from ffjax.train.pretrain import load_backbone
 
+        if not Path(args.pretrained).is_dir():
+            raise FileNotFoundError(f"--pretrained {args.pretrained}: no such folder (make one with python -m "
+                                    "ffjax.train.pretrain --out DIR)")
         backbone = load_backbone(args.pretrained)
     elif spec.pretrained and not (resume and has_ckpt):
         print(

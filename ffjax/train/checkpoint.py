@@ -26,6 +26,7 @@ import shutil
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
@@ -40,14 +41,22 @@ class CheckpointError(ValueError):
 class CheckpointWriteError(OSError):
     """A checkpoint or run file could not be written (disk full, no permission); older ones are intact."""
 
+    def __str__(self) -> str:  # the message alone, without OSError's "[Errno 28]" prefix
+        return self.strerror or super().__str__()
+
 
 def atomic_write_text(path, text: str) -> None:
     """Write `path` so that a kill or a full disk leaves either the old file or the new one, never a part."""
+    atomic_write_bytes(path, text.encode())
+
+
+def atomic_write_bytes(path, data: bytes) -> None:
+    """atomic_write_text for bytes."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     try:
-        with open(tmp, "w") as f:
-            f.write(text)
+        with open(tmp, "wb") as f:
+            f.write(data)
             f.flush()
             os.fsync(f.fileno())  # the bytes are on disk before the rename makes them visible
         os.replace(tmp, path)
@@ -97,13 +106,18 @@ def check_writable(folder, need_bytes: int = 0) -> Path:
 
 def _save_error(e: BaseException, what: str, good) -> CheckpointWriteError:
     """A save failure as a CheckpointWriteError that says which checkpoint is still good."""
-    inner = e
+    inner, chain = e, []
     for _ in range(20):  # follow the exception chain (orbax wraps) to the OSError, if any
         if inner is None or isinstance(inner, OSError):
             break
+        chain.append(str(inner))
         inner = inner.__cause__ or inner.__context__
     code = inner.errno if isinstance(inner, OSError) else None
-    why = "the disk is full" if code == errno.ENOSPC else f"{type(e).__name__}: {e}"
+    # TensorStore reports ENOSPC as a ValueError("RESOURCE_EXHAUSTED: ... No space left on device")
+    if code is None and any("RESOURCE_EXHAUSTED" in t or "No space left" in t for t in chain):
+        code = errno.ENOSPC
+    first = (str(e).strip().splitlines() or [type(e).__name__])[0][:300]
+    why = "the disk is full" if code == errno.ENOSPC else f"{type(e).__name__}: {first}"
     keep = f"the last good checkpoint (step {good}) is untouched" if good is not None else "no checkpoint yet"
     return CheckpointWriteError(code or errno.EIO, f"could not save {what}: {why}; {keep}. Free space / fix "
                                 f"permissions, then resume (--resume)")
@@ -111,6 +125,47 @@ def _save_error(e: BaseException, what: str, good) -> CheckpointWriteError:
 
 def _abstract(tree):
     return jax.tree.map(ocp.utils.to_shape_dtype_struct, tree)
+
+
+_UNSIGNED = {1: jnp.uint8, 2: jnp.uint16, 4: jnp.uint32}
+
+
+@jax.jit
+def _leaf_sums(leaves):
+    def one(x):
+        if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+            x = jax.random.key_data(x)
+        if x.dtype == jnp.bool_:
+            x = x.astype(jnp.uint8)
+        u = jax.lax.bitcast_convert_type(x, _UNSIGNED[x.dtype.itemsize]).astype(jnp.uint32).ravel()
+        pos = jnp.arange(1, u.size + 1, dtype=jnp.uint32)
+        # a plain sum misses swapped values, the position-weighted one catches them (Fletcher-style, mod 2^32)
+        return jnp.stack([u.sum(dtype=jnp.uint32), (u * pos).sum(dtype=jnp.uint32)])
+
+    return [one(x) for x in leaves]
+
+
+def tree_checksums(tree) -> dict[str, str]:
+    """Per-tensor checksums of a pytree ({"['params']['dense']['kernel']": "0123abcd89ef4567", ...}), computed
+    on the device (one small transfer): saved with every checkpoint and compared after restoring, so a
+    flipped byte in a data file is an error naming the tensor instead of a model that predicts NaN."""
+    paths, leaves = zip(*jax.tree_util.tree_flatten_with_path(tree)[0]) if jax.tree.leaves(tree) else ((), ())
+    sums = jax.device_get(_leaf_sums(list(leaves)))
+    return {jax.tree_util.keystr(p): f"{int(a):08x}{int(b):08x}" for p, (a, b) in zip(paths, sums)}
+
+
+def verify_checksums(tree, saved: dict | None, path) -> None:
+    """Raise CheckpointError naming `path` and the first tensor whose data differ from what was saved
+    (checkpoints written before checksums existed carry none and pass)."""
+    if not saved:
+        return
+    now = tree_checksums(tree)
+    bad = [k for k in saved if now.get(k) != saved[k]]
+    if bad or set(now) != set(saved):
+        what = (f"tensor {bad[0]} differs" + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else "")) if bad \
+            else "its tensor list differs"
+        raise CheckpointError(f"{path} is corrupt: {what} from the checksums saved with it (a disk or copy error "
+                              "changed the files)")
 
 
 def _jsonable(obj):
@@ -150,6 +205,7 @@ class Checkpointer:
         # cleanup_tmp_directories: a save a kill interrupted is an unfinished `<step>.orbax-checkpoint-tmp*`
         # folder; orbax never lists it as a step, and this removes it when the run is reopened.
         opts = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True, cleanup_tmp_directories=True)
+        self._opts = opts
         self.latest = ocp.CheckpointManager(run_dir / "checkpoints", options=opts)
         self.best = ocp.CheckpointManager(
             run_dir / "best",
@@ -164,6 +220,7 @@ class Checkpointer:
             self._save_latest(step, state, data_state, meta)
 
     def _save_latest(self, step: int, state, data_state, meta: dict) -> None:
+        meta = {**meta, "checksums": tree_checksums(state.arrays())}
         self.latest.save(
             step,
             args=ocp.args.Composite(
@@ -181,6 +238,7 @@ class Checkpointer:
             # bytes (the replay is exact), and keeping it means there is never a moment without one.
             return
         variables = {"params": state.params, "batch_stats": state.batch_stats}
+        meta = {**meta, "checksums": tree_checksums(variables)}
         with self._saving(f"best checkpoint step {step} in {self.run_dir / 'best'}"):
             self.best.save(
                 step,
@@ -205,30 +263,59 @@ class Checkpointer:
         return ctx()
 
     def _good_step(self):
-        try:
-            return self.latest.latest_step()
-        except Exception:
-            return None
+        """The newest step whose folder is complete on disk (orbax already lists a step whose save failed)."""
+        folder = self.run_dir / "checkpoints"
+        done = [int(p.name) for p in folder.iterdir() if p.name.isdigit() and (p / "_CHECKPOINT_METADATA").is_file()] \
+            if folder.is_dir() else []
+        return max(done, default=None)
 
-    def restore_latest(self, state):
-        """(state, data_state, meta) from the newest checkpoint, placed like `state`; None if none."""
+    def restore_latest(self, state, log=print):
+        """(state, data_state, meta) from the newest intact checkpoint, placed like `state`; None if none.
+
+        A checkpoint that cannot be read or fails its checksums is moved aside (`<step>.corrupt`, kept for
+        inspection) and the next older one is used, saying so; CheckpointError when none is intact."""
         self.wait()
-        step = self.latest.latest_step()
-        if step is None:
-            return None
-        path = self.run_dir / "checkpoints" / str(step)
-        try:
-            res = self.latest.restore(
-                step,
-                args=ocp.args.Composite(
-                    state=ocp.args.StandardRestore(_abstract(state.arrays())),
-                    data=ocp.args.JsonRestore(),
-                    meta=ocp.args.JsonRestore(),
-                ),
-            )
-        except Exception as e:
-            raise CheckpointError(f"cannot resume from {path}: {_why(e)}") from e
-        return state.with_arrays(dict(res["state"])), _unjson(res["data"])["iterator"], _unjson(res["meta"])
+        folder, refused = self.run_dir / "checkpoints", []
+        for step in sorted(self.latest.all_steps(), reverse=True):
+            path = folder / str(step)
+            try:
+                res = self.latest.restore(
+                    step,
+                    args=ocp.args.Composite(
+                        state=ocp.args.StandardRestore(_abstract(state.arrays())),
+                        data=ocp.args.JsonRestore(),
+                        meta=ocp.args.JsonRestore(),
+                    ),
+                )
+                meta = _unjson(res["meta"])
+                verify_checksums(res["state"], meta.pop("checksums", None), path)
+            except Exception as e:
+                same = _same_model(path / "state", state.params)
+                if same is False and not refused:  # the run is another model's: no older step is better
+                    raise CheckpointError(f"cannot resume from {path}: {_why(e, False)}") from e
+                refused.append(str(e) if isinstance(e, CheckpointError) else f"{path} is unreadable: "
+                               f"{_why(e, same)}")
+                continue
+            if refused:
+                self._move_aside([s for s in self.latest.all_steps() if s > step])
+                log(f"warning: {'; '.join(refused)}; resuming from step {step}, the newest intact checkpoint "
+                    "(the damaged ones are kept as checkpoints/<step>.corrupt)")
+            return state.with_arrays(dict(res["state"])), _unjson(res["data"])["iterator"], meta
+        if refused:
+            raise CheckpointError("; ".join(refused) + "; no intact checkpoint is left: start a new run")
+        return None
+
+    def _move_aside(self, steps: list[int]) -> None:
+        """Rename damaged steps to `<step>.corrupt` (orbax ignores them) and reopen the manager, so the resumed
+        run writes those steps afresh instead of skipping them as already saved."""
+        self.latest.close()
+        for step in steps:
+            src = self.run_dir / "checkpoints" / str(step)
+            dst = src.with_name(f"{step}.corrupt")
+            if dst.exists():
+                shutil.rmtree(dst)
+            src.rename(dst)
+        self.latest = ocp.CheckpointManager(self.run_dir / "checkpoints", options=self._opts)
 
     def latest_step(self) -> int | None:
         self.wait()
@@ -257,12 +344,44 @@ def _drop_interrupted_deletes(folder: Path) -> None:
             shutil.rmtree(path, ignore_errors=True)
 
 
-def _why(e: BaseException) -> str:
-    """A restore failure in words: another architecture, or a checkpoint that is partial / not ffjax's."""
+def _saved_param_shapes(item_dir: Path) -> dict | None:
+    """{("params", "dense", "kernel"): shape} from an orbax item's _METADATA (no array data read); None when
+    that file is missing or unreadable."""
+    try:
+        tree = json.loads((item_dir / "_METADATA").read_text())["tree_metadata"]
+        out = {}
+        for entry in tree.values():
+            keys = tuple(str(k["key"]) for k in entry["key_metadata"])
+            if keys and keys[0] == "params":
+                out[keys] = tuple(entry["value_metadata"]["write_shape"])
+        return out
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _same_model(item_dir: Path, params) -> bool | None:
+    """Whether the checkpoint's saved parameter tree and shapes are `params`'s (None: cannot tell)."""
+    saved = _saved_param_shapes(item_dir)
+    if not saved:
+        return None
+    ours = {("params", *(str(getattr(k, "key", k)) for k in path)): tuple(x.shape)
+            for path, x in jax.tree_util.tree_flatten_with_path(params)[0]}
+    return saved == ours
+
+
+def _why(e: BaseException, same_model: bool | None = None) -> str:
+    """A restore failure in words. same_model (from the saved metadata, see _same_model) tells a damaged
+    checkpoint of this model from one of another architecture; without it, the error text decides."""
     text = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+    text = text.split(" See full TensorStore details")[0]
     low = str(e).lower()
-    if "shape" in low or "structure" in low or "mismatch" in low or "not found in" in low or "keys" in low:
+    if same_model is None:
+        same_model = not ("shape" in low or "structure" in low or "mismatch" in low or "not found in" in low
+                          or "keys" in low) and None
+    if same_model is False:
         return f"it was written for another model/optimizer (different parameter tree or shapes): {text[:300]}"
+    if same_model:
+        return f"its files are damaged (truncated or corrupt): {type(e).__name__}: {text[:300]}"
     return f"it is partial, corrupt or not an ffjax checkpoint ({type(e).__name__}: {text[:300]})"
 
 
@@ -357,22 +476,28 @@ def load_checkpoint(run_dir, which: str = "best"):
 
 
 def _restore_variables(mgr, step: int, which: str, target: dict, path: Path) -> dict:
-    """params/batch_stats of one step, checked against the model's shapes; CheckpointError otherwise."""
+    """params/batch_stats of one step, checked against the model's shapes and the saved checksums;
+    CheckpointError otherwise."""
+    item = "variables" if which == "best" else "state"
     try:
         if which == "best":
-            restored = mgr.restore(step, args=ocp.args.Composite(variables=ocp.args.StandardRestore(target)))
+            restored = mgr.restore(step, args=ocp.args.Composite(variables=ocp.args.StandardRestore(target),
+                                                                 meta=ocp.args.JsonRestore()))
             out = restored["variables"]
         else:
             # The optimizer state's structure depends on the labels; restore without a target and keep
             # only the model's variables, checked against the model's shapes.
-            restored = mgr.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore()))
+            restored = mgr.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(),
+                                                                 meta=ocp.args.JsonRestore()))
             out = {
                 "params": restored["state"]["params"],
                 "batch_stats": restored["state"].get("batch_stats", {}),
             }
         jax.tree.map(lambda a, b: _same_shape(a, b), target["params"], out["params"])
     except Exception as e:
-        raise CheckpointError(f"refusing {path}: {_why(e)}") from e
+        raise CheckpointError(f"refusing {path}: {_why(e, _same_model(path / item, target['params']))}") from e
+    saved = (_unjson(restored["meta"]) or {}).get("checksums") or {}
+    verify_checksums(out, {k: v for k, v in saved.items() if k.startswith(("['params']", "['batch_stats']"))}, path)
     return out
 
 

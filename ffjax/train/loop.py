@@ -16,6 +16,7 @@ counts them and goes on.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -400,13 +401,25 @@ def _train(
             if max_steps is not None and done >= max_steps:
                 break
         flush()
-    finally:
+    except BaseException:
+        # already failing (a full disk, a kill, a NaN): the pending saves' own errors would only repeat it and
+        # replace the message that says what happened, so they are dropped here
         if bar is not None:
             bar.close()
-        try:
-            ckpt.wait()  # a pending async save must finish (or report its error) before the run counts as done
-        finally:
+        with contextlib.suppress(Exception):
+            ckpt.wait()
+        with contextlib.suppress(Exception):
             ckpt.close()
+        raise
+    if bar is not None:
+        bar.close()
+    try:
+        ckpt.wait()  # a pending async save must finish (or report its error) before the run counts as done
+    except BaseException:
+        with contextlib.suppress(Exception):
+            ckpt.close()
+        raise
+    ckpt.close()
 
     final_step = int(jax.device_get(state.step))
     elapsed = elapsed0 + time.perf_counter() - t0
