@@ -15,7 +15,7 @@ force range, as everywhere in ffjax) and MAE in newtons. The held-out frames are
 as the fitting frames: they measure the fit, not the transfer to other shapes. With a single calibration object
 (the paper's Big Sphere) the head also learns that object's own error and passes it to every other shape: record
 presses of a few different shapes (flat and round), and calibrate only when the new sensor's error on the object
-differs from the training sensor's on the same object (see README, Table III).
+differs from the training sensor's on the same object (see docs/results.md, Table III).
 --out gets a new self-describing folder
 (model.json, variables.msgpack, calibration.json, background.png) that inference.load / ffjax.live /
 ffjax.export accept; its expected frame size is the calibration frames'. The checkpoint is never modified.
