@@ -85,7 +85,7 @@ def run(cfg: dict, methods, n_seeds: int, out, data_dir=None, force: bool = Fals
     results["training"] = training_report.summarize(checkpoints, data_root)
     results["findings"] = tables.findings(results)
     tables.write_all(results, out)
-    training_report.write(results["training"], out, cfg["preset"])
+    training_report.write(results["training"], out, cfg["preset"], seeds, results["commit"])
     return results
 
 

@@ -84,6 +84,15 @@ def write_text(path, text: str) -> None:
         raise
 
 
+def stamp(fig, preset: str, seeds, commit: str) -> None:
+    """Print what a figure was made from in its corner (preset, seeds, commit), and say so when the preset's
+    numbers mean nothing: a PNG copied into a notebook keeps its provenance."""
+    text = f"ffjax · preset {preset} · seeds {list(seeds)} · commit {str(commit)[:7]}"
+    if preset == "smoke":
+        text += " · SMOKE PRESET: plumbing check, numbers meaningless"
+    fig.text(0.995, 0.005, text, ha="right", va="bottom", fontsize=7, color="0.35")
+
+
 def read_json(path):
     path = Path(path)
     return json.loads(path.read_text()) if path.is_file() else None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -214,7 +215,7 @@ def table3_md(results: dict) -> tuple[str, list, list]:
     for i, t in enumerate(targets):
         layers = next((t3[m][t]["layers"] for m in t3 if t in t3[m]), "")
         rows.append([f"{t} ({layers})"]
-                    + [f"{common.fmt(t3[m][t]['before'])} → **{common.fmt(t3[m][t]['after'])}**" if t in t3[m] else "–"
+                    + [_before_after(t3[m][t]) if t in t3[m] else "–"
                        for m in t3]
                     + [f"{P.TABLE3[m][i]:.1f}" for m in t3 if m in P.TABLE3])
         csv_rows += [[m, t, t3[m][t]["layers"], _m(t3[m][t]["before"]), _m(t3[m][t]["after"]),
@@ -235,6 +236,8 @@ def table3_md(results: dict) -> tuple[str, list, list]:
 
 
 def plot_all(results: dict, out: Path) -> list[Path]:
+    """table{1,2,3}.png: our bars beside the paper's ticks; error bars only over >= 2 seeds; legends outside the
+    data; preset, seeds and commit stamped on each figure."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -243,43 +246,55 @@ def plot_all(results: dict, out: Path) -> list[Path]:
     paths = []
     methods = list(results["table1"])
     colors = plt.cm.tab10(np.arange(len(methods)))
+    multi_seed = len(results.get("seeds", [])) >= 2
+    hatches = _hatches(results["table1"])
+
+    def finish(fig, ax, path):
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+        common.stamp(fig, results["preset"], results.get("seeds", []), results.get("commit", "?"))
+        paths.append(save_png(fig, path))
 
     def bars(ax, groups, getter, paper=None):
         width = 0.8 / len(methods)
         x = np.arange(len(groups))
         for i, m in enumerate(methods):
             vals = [getter(m, g) for g in groups]
-            ax.bar(x + i * width, [_m(v) for v in vals], width, yerr=[v["std"] if v else 0 for v in vals],
-                   label=_name(m), color=colors[i], capsize=2)
-            if paper and m in paper:
-                ax.scatter(x + i * width, paper[m][: len(groups)], marker="_", s=120, color="k", zorder=3)
+            err = [v["std"] if v else 0 for v in vals] if multi_seed else None
+            ax.bar(x + i * width, [_m(v) for v in vals], width, yerr=err, capsize=2 if multi_seed else 0,
+                   label=_name(m) + (" (= " + hatches[m][1] + ")" if hatches[m][1] else ""), color=colors[i],
+                   hatch=hatches[m][0], edgecolor="white" if hatches[m][0] else None)
+        if paper:
+            for i, m in enumerate(methods):
+                if m in paper:
+                    ax.scatter(x + i * width, paper[m][: len(groups)], marker="_", s=120, color="k", zorder=3,
+                               label="paper" if i == min(j for j, mm in enumerate(methods) if mm in paper) else None)
         ax.set_xticks(x + 0.4 - width / 2)
         ax.set_ylabel("normalized L1 error (%)")
-        ax.legend(fontsize=7)
 
+    seeds_txt = f"mean ± std over {len(results['seeds'])} seeds" if multi_seed else "1 seed, no error bars"
     t1 = results["table1"]
     objs = [o for o in P.OBJECTS if o in t1[methods[0]]] + ["mean"]
-    fig, ax = plt.subplots(figsize=(12, 4))
+    fig, ax = plt.subplots(figsize=(13, 4.2))
     bars(ax, objs, lambda m, g: t1[m].get(g), {m: v for m, v in P.TABLE1.items()})
     ax.set_xticklabels([o.replace("_", " ") for o in objs], rotation=30, ha="right")
-    ax.set_title("Table I: unseen objects (bars: ours; black ticks: the paper)")
-    paths.append(save_png(fig, out / "table1.png"))
+    ax.set_title(f"Table I: unseen objects ({seeds_txt}; black ticks: the paper, real sensor)")
+    finish(fig, ax, out / "table1.png")
 
     t2 = results["table2"]
     keys = [P.sensor_label(s) for s in P.SENSORS] + ["mean"]
-    fig, ax = plt.subplots(figsize=(12, 4))
+    fig, ax = plt.subplots(figsize=(13, 4.2))
     bars(ax, keys, lambda m, g: t2[m].get(g), {m: v for m, v in P.TABLE2.items()})
     ax.set_xticklabels(keys, rotation=30, ha="right")
-    ax.set_title("Table II: trained on mini-1/gel-1 (bars: ours; black ticks: the paper)")
-    paths.append(save_png(fig, out / "table2.png"))
+    ax.set_title(f"Table II: trained on mini-1/gel-1 ({seeds_txt}; black ticks: the paper)")
+    finish(fig, ax, out / "table2.png")
 
     t3 = results["table3"]
     targets = [P.sensor_label(t) for t in P.CALIB_TARGETS]
-    fig, axes = plt.subplots(1, len(targets), figsize=(12, 3.6), sharey=False)
+    fig, axes = plt.subplots(1, len(targets), figsize=(13, 3.8), sharey=False)
     for ax, t in zip(np.atleast_1d(axes), targets):
         x = np.arange(len(methods))
-        ax.bar(x - 0.2, [_m(t3[m][t]["before"]) for m in methods], 0.4, label="before", color="0.7")
-        ax.bar(x + 0.2, [_m(t3[m][t]["after"]) for m in methods], 0.4, label="after", color=colors)
+        ax.bar(x - 0.2, [_m(t3[m][t]["before"]) for m in methods], 0.4, label="before calibration", color="0.75")
+        ax.bar(x + 0.2, [_m(t3[m][t]["after"]) for m in methods], 0.4, label="after calibration", color="tab:blue")
         paper_x = [i for i, m in enumerate(methods) if m in P.TABLE3]
         ax.scatter([i + 0.2 for i in paper_x], [P.TABLE3[methods[i]][targets.index(t)] for i in paper_x],
                    marker="_", s=120, color="k", zorder=3, label="paper (after)")
@@ -287,10 +302,27 @@ def plot_all(results: dict, out: Path) -> list[Path]:
         ax.set_xticklabels([_name(m) for m in methods], rotation=30, ha="right", fontsize=7)
         ax.set_title(f"{t} ({t3[methods[0]][t]['layers']})")
     np.atleast_1d(axes)[0].set_ylabel("normalized L1 error (%)")
-    np.atleast_1d(axes)[0].legend(fontsize=7)
-    fig.suptitle(f"Table III: calibration with {results['config']['data']['calib_samples']} Big Sphere presses")
-    paths.append(save_png(fig, out / "table3.png"))
+    fig.suptitle(f"Table III: calibration with {results['config']['data']['calib_samples']} Big Sphere presses "
+                 f"({seeds_txt})")
+    finish(fig, np.atleast_1d(axes)[-1], out / "table3.png")
     return paths
+
+
+def _before_after(cell: dict) -> str:
+    """'8.1 → **6.8**': the after-calibration number in bold only where calibration lowered the error."""
+    before, after = common.fmt(cell["before"]), common.fmt(cell["after"])
+    return f"{before} → **{after}**" if _m(cell["after"]) < _m(cell["before"]) else f"{before} → {after}"
+
+
+def _hatches(t1: dict) -> dict:
+    """Methods whose Table I cells equal an earlier method's (e.g. DINO_F R and DINO_F RD, whose regressor
+    sees the same frozen features) get a hatch and '(= other)' in the legend, instead of hiding behind it."""
+    out, seen = {}, {}
+    for m, cells in t1.items():
+        key = json.dumps({k: _m(v) for k, v in cells.items()}, sort_keys=True)
+        out[m] = ("//", _name(seen[key])) if key in seen else (None, "")
+        seen.setdefault(key, m)
+    return out
 
 
 def save_png(fig, path: Path) -> Path:

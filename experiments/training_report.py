@@ -86,7 +86,7 @@ def curve_rows(report: dict) -> tuple[list, list]:
     return header, rows
 
 
-def plot(report: dict, path: Path, preset: str) -> Path:
+def plot(report: dict, path: Path, preset: str, seeds=(), commit: str = "?") -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -117,14 +117,15 @@ def plot(report: dict, path: Path, preset: str) -> Path:
     axes[0].set_ylabel("validation normalized L1 (%)")
     axes[1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     fig.suptitle(f"Accuracy against training time (preset {preset}; one cosine schedule per run)")
+    common.stamp(fig, preset, seeds, commit)
     return tables.save_png(fig, path)
 
 
-def write(report: dict, out: Path, preset: str) -> None:
+def write(report: dict, out: Path, preset: str, seeds=(), commit: str = "?") -> None:
     """training.md / training.csv (final errors), training_curves.csv and training_curves.png."""
     out = Path(out)
     text, header, rows = table_md(report, preset)
     common.write_text(out / "training.md", text)
     common.write_csv(out / "training.csv", header, rows)
     common.write_csv(out / "training_curves.csv", *curve_rows(report))
-    plot(report, out / "training_curves.png", preset)
+    plot(report, out / "training_curves.png", preset, seeds, commit)

@@ -1,0 +1,53 @@
+"""Re-render an experiment's tables and figures from its results.json with the current code (no training).
+
+    python -m experiments.replot docs/results/ablation-quick [more folders ...]
+
+For Tables I-III folders (`experiments.ablation`) and stability folders (`experiments.stability`); the numbers
+are read back unchanged, only the text and plots are written again (the commit the numbers came from stays in
+results.json and on every figure).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from experiments import common
+
+
+def replot(folder) -> str:
+    """Re-render one folder; returns its kind. ValueError for a folder of another kind."""
+    folder = Path(folder)
+    results = common.read_json(folder / "results.json")
+    if results is None:
+        raise FileNotFoundError(f"{folder / 'results.json'}: no such file")
+    if "table1" in results:
+        from experiments import tables, training_report
+
+        tables.write_all(results, folder)
+        if results.get("training"):
+            training_report.write(results["training"], folder, results["preset"], results.get("seeds", []),
+                                  results.get("commit", "?"))
+        return "ablation"
+    if "factors" in results and "seed_spread" in results:
+        from experiments import stability
+
+        stability.write_all(results, folder)
+        return "stability"
+    raise ValueError(f"{folder}: results.json is not from experiments.ablation or experiments.stability")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
+    ap.add_argument("folders", nargs="+", help="folders holding a results.json")
+    for folder in ap.parse_args(argv).folders:
+        print(f"{folder}: re-rendered ({replot(folder)})")
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

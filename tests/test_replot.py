@@ -1,0 +1,28 @@
+"""experiments.replot re-renders a committed result folder from its results.json without changing a number."""
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from experiments import replot
+
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+
+
+def test_replot_reproduces_the_committed_tables(tmp_path):
+    src = RESULTS / "ablation-quick-seeds"
+    shutil.copy(src / "results.json", tmp_path / "results.json")
+    assert replot.replot(tmp_path) == "ablation"
+    for name in ("table1.md", "table2.md", "table3.md", "training.md"):
+        assert (tmp_path / name).read_text() == (src / name).read_text(), name
+    for name in ("table1.png", "table2.png", "table3.png", "training_curves.png"):
+        assert (tmp_path / name).stat().st_size > 10_000, name
+
+
+def test_replot_refuses_other_folders(tmp_path):
+    with pytest.raises(FileNotFoundError, match="results.json"):
+        replot.replot(tmp_path)
+    (tmp_path / "results.json").write_text('{"cells": []}')
+    with pytest.raises(ValueError, match="not from experiments.ablation"):
+        replot.replot(tmp_path)
