@@ -26,11 +26,15 @@ def prog() -> str | None:
     return f"python -m {spec.name}" if spec is not None and spec.name else None
 
 
-def base_parser(description: str, default_preset: str = "quick") -> argparse.ArgumentParser:
+def base_parser(description: str, default_preset: str = "quick", costs: dict | None = None) -> argparse.ArgumentParser:
+    """The experiments' shared flags. costs: {preset: measured wall time on the 2-core VM}, shown in --help and
+    said at the start of a run, so nobody starts a half-hour job without knowing."""
+    costs = {"smoke": "a minute or two, numbers meaningless", **(costs or {})}
     ap = argparse.ArgumentParser(prog=prog(), description=description)
+    ap.set_defaults(_costs=costs)
     ap.add_argument("--preset", default=default_preset, choices=configs.PRESETS,
-                    help=f"size of data, models and training (default: {default_preset}; smoke: a minute or two, "
-                         "numbers meaningless)")
+                    help=f"size of data, models and training (default: {default_preset}). Measured on a 2-core "
+                         "CPU: " + "; ".join(f"{k}: {v}" for k, v in costs.items()))
     ap.add_argument("--out", default=None, help="results folder (default: results/<experiment>-<preset>)")
     ap.add_argument("--data", default=None, help="dataset folder (default: data/<preset>, made if missing)")
     ap.add_argument("--force", action="store_true", help="redo cached stages even when their config matches")
@@ -41,8 +45,13 @@ def base_parser(description: str, default_preset: str = "quick") -> argparse.Arg
 
 
 def config_from_args(ap, args) -> dict:
-    """The validated config of --preset and --set; a bad key or value is a usage error (exit 2)."""
-    return configs.from_cli(ap, args.preset, args.set)
+    """The validated config of --preset and --set; a bad key or value is a usage error (exit 2). Says which
+    preset runs and what it costs (stderr), before any work."""
+    cfg = configs.from_cli(ap, args.preset, args.set)
+    cost = getattr(args, "_costs", {}).get(args.preset)
+    print(f"{prog() or 'experiment'}: preset {args.preset}" + (f" (measured: {cost})" if cost else "")
+          + ("" if args.preset == "smoke" else "; --preset smoke for a quick check"), file=sys.stderr)
+    return cfg
 
 
 def git_commit() -> str:

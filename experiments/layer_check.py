@@ -257,7 +257,7 @@ def plot(r: dict, path: Path) -> Path:
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0])
+    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "~1 min"})
     args = ap.parse_args(argv)
     cfg = common.config_from_args(ap, args)
     out = Path(args.out or common.ROOT / "results" / f"layer_check-{args.preset}")

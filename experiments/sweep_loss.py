@@ -80,7 +80,9 @@ def reusable_run(ablation_dir: Path | None, spec, seed: int, key: str) -> Path |
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0])
+    ap = common.base_parser(__doc__.strip().splitlines()[0],
+                            costs={"quick": "20 min reusing an ablation's runs "
+                                             "(--ablation; measured on the earlier 372-step preset)"})
     ap.add_argument("--betas", type=float, nargs="+", default=list(DEFAULT_BETAS), help="depth-loss weights")
     ap.add_argument("--alpha", type=float, default=1.0, help="force-loss weight (the x axis is beta / alpha)")
     ap.add_argument("--seeds", type=int, default=None, help="seeds per beta (default: 1, 3 at full)")

@@ -1,0 +1,616 @@
+"""Issue 17's nine numbered reliability cases, each exercised as a user would and measured.
+
+    python -m experiments.faults --only-cases [--out DIR]     # or --cases beside the kill/resume parts
+
+Every case runs the real command lines (`python -m ffjax.live ...`) in subprocesses from the repository
+root, then measures what a user would see: the exit code, the stderr lines, the key line, and the files
+before and after. `run_cases` builds the shared fixtures once under OUT/cases/_shared (a small simulated
+smoke dataset, a 2-epoch run of it, a bundle of that run, an 11-frame video), runs each case in its own
+OUT/cases/caseN/ and returns one row per command: what was done, what was expected, what was measured and
+the named checks whose conjunction is the row's "pass". `cases_md` renders the rows as a Markdown table.
+Case 5 needs a 40 MiB tmpfs (`mount`, root only); where mounting fails it is reported as skipped.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import re
+import shutil
+import subprocess
+import sys
+import threading
+import time
+import traceback
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from tqdm import tqdm
+
+from experiments import common
+
+METHOD = "dino_rd_scratch"  # no pretraining stage
+# a smaller smoke dataset than the preset's: 80 training frames (10 steps an epoch), 20 validation frames
+SMALL_DATA = ("data.train_per_indenter=8", "data.val_per_indenter=2", "data.unseen_per_object=1",
+              "data.sensor_test_per_indenter=1", "data.calib_samples=2")
+TIMEOUT = 600.0
+# a torch zip's data.pkl naming one float tensor of 4 elements in storage "0" (torch.save's layout)
+ONE_TENSOR_PKL = (b"\x80\x02ccollections\nOrderedDict\n)RX\x01\x00\x00\x00wctorch._utils\n_rebuild_tensor_v2\n(("
+                  b"X\x07\x00\x00\x00storagectorch\nFloatStorage\nX\x01\x00\x00\x000X\x03\x00\x00\x00cpuK\x04tQ"
+                  b"K\x00K\x04\x85K\x01\x85\x89tRs.")
+ERRORS = "exit 1/2, one `error:` line, no traceback"
+
+
+@dataclass
+class Shared:
+    """The fixtures the cases share; the trained-model ones are None where a caller needs only data."""
+
+    env: dict
+    data: Path
+    run: Path | None = None
+    bundle: Path | None = None
+    video: Path | None = None
+    n_frames: int = 0
+
+
+class _Payload:
+    """Unpickling this runs `echo pwned`: what a crafted .pth does to an unrestricted torch.load."""
+
+    def __reduce__(self):
+        return (os.system, ("echo pwned",))
+
+
+# ---- running commands ---------------------------------------------------------------------------------
+
+
+def _start(folder: Path, name: str, env: dict, *args) -> subprocess.Popen:
+    """Start `python -m args` from the repository root, stdout/stderr to folder/name.{stdout,stderr}."""
+    args = [str(a) for a in args]
+    with open(folder / f"{name}.stdout", "w") as out, open(folder / f"{name}.stderr", "w") as err:
+        p = subprocess.Popen([sys.executable, "-m", *args], env=env, cwd=common.ROOT, stdout=out, stderr=err)
+    p.logs, p.cmd, p.t0 = (folder / f"{name}.stdout", folder / f"{name}.stderr"), "python -m " + " ".join(args), \
+        time.perf_counter()
+    return p
+
+
+def _alive(p: subprocess.Popen) -> bool:
+    """Is p running? Asked without reaping it, so _wait still gets its exit status and peak memory."""
+    return os.waitid(os.P_PID, p.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is None
+
+
+def _wait(p: subprocess.Popen, timeout: float = TIMEOUT) -> dict:
+    """Wait for a _start()ed process (SIGKILLed after `timeout` s): rc, stdout, stderr, peak RSS, seconds."""
+    timer = threading.Timer(timeout, p.kill)
+    timer.start()
+    try:
+        _, status, usage = os.wait4(p.pid, 0)
+    finally:
+        timer.cancel()
+    p.returncode = os.waitstatus_to_exitcode(status)
+    out, err = (f.read_text(errors="replace") for f in p.logs)
+    return {"rc": p.returncode, "out": out, "err": err, "peak_mib": round(usage.ru_maxrss / 1024, 1),
+            "cmd": p.cmd, "seconds": round(time.perf_counter() - p.t0, 1)}
+
+
+def _cli(folder: Path, name: str, env: dict, *args) -> dict:
+    """Run `python -m args` to the end; see _wait."""
+    return _wait(_start(folder, name, env, *args))
+
+
+def _wait_until(cond, p: subprocess.Popen, timeout: float = 300.0) -> bool:
+    """Poll cond() every 20 ms while p runs; whether it came true."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if cond():
+            return True
+        if not _alive(p):
+            return bool(cond())
+        time.sleep(0.02)
+    return False
+
+
+def _train(data: Path, out: Path, *sets: str, extra=()) -> list:
+    """ffjax.train arguments: the smoke preset, no pretraining, --set for each of `sets`."""
+    return ["ffjax.train", "--preset", "smoke", "--method", METHOD, "--data", data, "--out", out, "--quiet",
+            *extra, *(a for s in sets for a in ("--set", s))]
+
+
+# ---- measuring ----------------------------------------------------------------------------------------
+
+
+def _error_lines(err: str) -> list[str]:
+    """`error: ...` lines (argparse's are `prog: error: ...`)."""
+    return [ln for ln in err.splitlines() if ln.startswith("error:") or ": error: " in ln]
+
+
+def _key_line(res: dict) -> str:
+    """The line that says what happened: the last error line, else the last line of stderr or stdout."""
+    errs = _error_lines(res["err"])
+    lines = errs or res["err"].strip().splitlines() or res["out"].strip().splitlines() or [""]
+    return lines[-1]
+
+
+def _line(text: str, pattern: str) -> str:
+    """The last line of `text` matching the regex `pattern` ('' if none)."""
+    return next((ln for ln in reversed(text.splitlines()) if re.search(pattern, ln)), "")
+
+
+def _error_checks(res: dict, codes=(1, 2), must=(), absent=()) -> dict:
+    """The one-line-error contract: exit code in `codes`, one error line saying each of `must`, no traceback
+    (nor any of `absent`) in stdout or stderr."""
+    errs = _error_lines(res["err"])
+    text = res["out"] + res["err"]
+    checks = {f"rc {'/'.join(map(str, codes))}": res["rc"] in codes, "one error line": len(errs) == 1}
+    checks.update({f"says '{m}'": bool(errs) and m in errs[-1] for m in must})
+    checks.update({f"no '{a}'": a not in text for a in ("Traceback", *absent)})
+    return checks
+
+
+def _row(case: str, what: str, expected: str, res: dict, checks: dict, key: str | None = None,
+         note: str = "") -> dict:
+    """One report row; "pass" is the conjunction of the measured `checks` (name -> bool)."""
+    checks = {k: bool(v) for k, v in checks.items()}
+    return {"case": case, "what": what, "expected": expected, "rc": res["rc"],
+            "stderr_lines": len(res["err"].splitlines()), "key_line": _key_line(res) if key is None else key,
+            "note": note, "checks": checks, "pass": bool(checks) and all(checks.values()), "cmd": res["cmd"],
+            "seconds": res["seconds"], "peak_mib": res["peak_mib"]}
+
+
+def _skipped(case: str, what: str, expected: str, reason: str) -> dict:
+    return {"case": case, "what": what, "expected": expected, "skipped": reason, "checks": {}, "pass": None}
+
+
+def _steps(folder: Path) -> list[int]:
+    """Finished checkpoint steps (orbax renames a step's temporary folder to the bare number when done)."""
+    return sorted(int(p.name) for p in folder.iterdir() if p.name.isdigit()) if folder.is_dir() else []
+
+
+def _log_rows(run: Path) -> list[tuple]:
+    """(kind, step) of every train_log.jsonl row."""
+    import json
+
+    text = (run / "train_log.jsonl").read_text() if (run / "train_log.jsonl").is_file() else ""
+    return [(r["kind"], r["step"]) for r in map(json.loads, text.splitlines())]
+
+
+def _summary_steps(run: Path) -> tuple:
+    """(steps, total_steps) from a run's summary.json (None, None without one)."""
+    s = common.read_json(run / "summary.json") or {}
+    return s.get("steps"), s.get("total_steps")
+
+
+# ---- fixtures -----------------------------------------------------------------------------------------
+
+
+def build_shared(folder: Path, env: dict) -> Shared:
+    """Simulate a small smoke dataset, train it 2 epochs (checkpoints at steps 18 and 20), bundle the run
+    and write an 11-frame video of its validation frames (the first one the sensor's background)."""
+    _clear(folder)
+    folder.mkdir(parents=True)
+    data, run = folder / "data", folder / "run"
+    gen = _cli(folder, "dataset", env, "ffjax.sim.dataset", "--preset", "smoke", "--out", data, "--quiet",
+               "--workers", min(2, os.cpu_count() or 1), *(a for s in SMALL_DATA for a in ("--set", s)))
+    trained = gen["rc"] == 0 and _cli(folder, "train", env, *_train(data, run, "train.epochs=2",
+                                                                    "train.ckpt_every=3"))["rc"] == 0
+    if not trained:
+        raise RuntimeError(f"shared fixtures failed; see {folder}/*.stderr")
+    from ffjax import inference
+
+    bundle = inference.save_bundle(folder / "bundle", inference.read_checkpoint(run))
+    n = _write_video(data / "val", folder / "press.mp4")
+    return Shared(env, data, run, bundle, folder / "press.mp4", n)
+
+
+def _write_video(split: Path, path: Path, n: int = 10) -> int:
+    """The split's background then its first `n` frames as an mp4v video; the frame count."""
+    import cv2
+    import numpy as np
+
+    frames = np.load(sorted(split.glob("shard_*.npz"))[0])["image"][:n]
+    bgr = [cv2.imread(str(split / "background.png"))] + [f[..., ::-1] for f in frames]
+    h, w = bgr[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (w, h))
+    for f in bgr:
+        writer.write(np.ascontiguousarray(f))
+    writer.release()
+    return len(bgr)
+
+
+def _nan_bundle(run: Path, out: Path) -> str:
+    """A bundle of `run` whose last regressor kernel has a NaN at [0, 0]; that tensor's path."""
+    import jax
+    import numpy as np
+
+    from ffjax import inference
+
+    ckpt = inference.read_checkpoint(run)
+    variables = jax.tree.map(np.array, ckpt.variables)  # writable copies
+    leaves = jax.tree_util.tree_flatten_with_path(variables["params"]["regressor"])[0]
+    path, kernel = [(p, x) for p, x in leaves if x.ndim == 2][-1]
+    kernel[0, 0] = np.nan
+    inference.save_bundle(out, ckpt, variables)
+    return "regressor" + jax.tree_util.keystr(path)
+
+
+def _flip_middle(path: Path, n: int = 4) -> None:
+    """Invert `n` bytes in the middle of a file."""
+    raw = bytearray(path.read_bytes())
+    mid = len(raw) // 2
+    raw[mid:mid + n] = bytes(b ^ 0xFF for b in raw[mid:mid + n])
+    path.write_bytes(bytes(raw))
+
+
+def _largest(folder: Path) -> Path:
+    return max((p for p in folder.iterdir() if p.is_file()), key=lambda p: p.stat().st_size)
+
+
+def _torch_zip(path: Path, pkl: bytes, storage: bytes | None = None) -> Path:
+    """A torch.save-style zip: archive/data.pkl, and archive/data/0 deflated when `storage` is given."""
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("archive/data.pkl", pkl)
+        zf.writestr("archive/byteorder", "little")
+        if storage is not None:
+            zf.writestr("archive/data/0", storage)
+    return path
+
+
+# ---- the cases ----------------------------------------------------------------------------------------
+
+
+def case1(d: Path, sh: Shared) -> list[dict]:
+    """live --out LOG keeps LOG/forces.csv byte-identical when a second run's source fails to open."""
+    log, csv = d / "log", d / "log" / "forces.csv"
+    live = ["ffjax.live", "--checkpoint", sh.run, "--out", log, "--headless"]
+    good = _cli(d, "good", sh.env, *live, "--video", sh.video)
+    before = csv.read_bytes() if csv.is_file() else b""
+    names = sorted(os.listdir(log)) if log.is_dir() else []
+    rows = [_row("1a", "`live --video GOOD --out LOG`", "rc 0, LOG/forces.csv with a row per frame", good,
+                 {"rc 0": good["rc"] == 0, f"{sh.n_frames} csv rows": len(before.splitlines()) == sh.n_frames + 1},
+                 key=_line(good["out"], "wrote"), note=f"forces.csv {len(before)} B")]
+    for tag, src, what in (("1b", ("--video", d / "mistyped.mp4"), "`--video MISSING.mp4`"),
+                           ("1c", ("--camera", 99), "`--camera 99`")):
+        r = _cli(d, tag, sh.env, *live, *src)
+        after = csv.read_bytes() if csv.is_file() else b""
+        checks = {**_error_checks(r), "forces.csv byte-identical": after == before,
+                  "nothing moved aside": sorted(os.listdir(log)) == names}
+        rows.append(_row(tag, f"then `live` {what} into the same LOG", "exit != 0, LOG/forces.csv unchanged", r,
+                         checks, note=f"forces.csv {len(before)} B before, {len(after)} B after"))
+    return rows
+
+
+def case2(d: Path, sh: Shared) -> list[dict]:
+    """NaN weights are flagged frame by frame without a crash; flipped checkpoint bytes are refused."""
+    where = _nan_bundle(sh.run, d / "nan_bundle")
+    r = _cli(d, "nan", sh.env, "ffjax.live", "--checkpoint", d / "nan_bundle", "--video", sh.video, "--out",
+             d / "log", "--headless")
+    faults = _line(r["out"], r"^faults:")
+    counted = re.search(r"(\d+) non-finite", faults)
+    csv = d / "log" / "forces.csv"
+    nan_rows = sum("nan" in ln.split(",")[1:4] for ln in csv.read_text().splitlines()) if csv.is_file() else 0
+    n = sh.n_frames
+    rows = [_row("2a", f"`live` on a bundle with NaN at {where}[0, 0]", "rc 0, every frame flagged non-finite", r,
+                 {"rc 0": r["rc"] == 0, f"{n} [NON-FINITE] lines": r["out"].count("[NON-FINITE]") == n,
+                  f"faults line counts {n}": bool(counted) and int(counted.group(1)) == n,
+                  f"{n} NaN csv rows": nan_rows == n, "no 'Traceback'": "Traceback" not in r["out"] + r["err"]},
+                 key=faults)]
+    copy = d / "run_copy"
+    shutil.copytree(sh.run, copy)
+    target = _largest(next((copy / "best").glob("*/variables/ocdbt.process_0/d")))
+    _flip_middle(target)
+    r = _cli(d, "flipped", sh.env, "ffjax.live", "--checkpoint", copy, "--video", sh.video, "--headless")
+    rows.append(_row("2b", f"`live` on a run copy with 4 bytes flipped in best/.../d/{target.name[:8]}…",
+                     "exit 2, one error line 'is corrupt'", r, _error_checks(r, (2,), ["is corrupt"])))
+    return rows
+
+
+def case3(d: Path, sh: Shared) -> list[dict]:
+    """calibrate refuses a NaN or negative learning rate and a zero batch before any work."""
+    rows = []
+    for tag, flag, value in (("3a", "--lr", "nan"), ("3b", "--lr", "-1"), ("3c", "--batch-size", "0")):
+        out = d / f"out_{tag}"
+        r = _cli(d, tag, sh.env, "ffjax.calibrate", "--checkpoint", d / "run", "--data", d / "calib.csv", "--out",
+                 out, flag, value)
+        rows.append(_row(tag, f"`calibrate {flag} {value}`", "exit 2, no --out folder", r,
+                         {**_error_checks(r, (2,), [flag]), "no --out folder": not out.exists()}))
+    return rows
+
+
+def case4(d: Path, sh: Shared) -> list[dict]:
+    """A second training into a folder another one is writing is refused at once; the first is unharmed."""
+    run, sets = d / "run", ("train.epochs=30",)
+    a = _start(d, "A", sh.env, *_train(sh.data, run, *sets))
+    try:
+        locked = _wait_until(lambda: (run / ".lock").is_file() and (run / ".lock").stat().st_size > 0, a)
+        b = _cli(d, "B", sh.env, *_train(sh.data, run, *sets))
+        a_alive = _alive(a)
+    finally:
+        ra = _wait(a)
+    logged = _log_rows(run)
+    steps, total = _summary_steps(run)
+    rows = [_row("4a", "`train --out RUN` while training A holds RUN/.lock", "B exits 1 naming A's pid", b,
+                 {**_error_checks(b, (1,), [f"is in use by another training run (pid {a.pid} "]),
+                  "A held the lock": locked, "A still running": a_alive})]
+    rows.append(_row("4b", "training A, after B was refused", "A rc 0, no duplicate log rows", ra,
+                     {"rc 0": ra["rc"] == 0, "no duplicate (kind, step)": len(set(logged)) == len(logged) > 0,
+                      "all steps done": steps is not None and steps == total},
+                     key=_line(ra["out"], r"^run: "), note=f"{len(logged)} log rows, {steps}/{total} steps"))
+    return rows
+
+
+def case5(d: Path, sh: Shared) -> list[dict]:
+    """A disk that fills mid-run: one clear error naming an intact step; --resume after freeing space."""
+    what = "train into a 40 MiB tmpfs, fill it after the first checkpoint; free it, `--resume`"
+    expected = "rc 1, last line 'error: could not save … the disk is full' naming an intact step; resume rc 0"
+    mnt = d / "tmpfs"
+    mnt.mkdir()
+    m = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=40m", "tmpfs", str(mnt)], capture_output=True, text=True)
+    if m.returncode:
+        return [_skipped("5", what, expected, f"mount failed: {(m.stderr or m.stdout).strip()[:200]}")]
+    try:
+        return _full_disk(d, mnt, sh)
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def _full_disk(d: Path, mnt: Path, sh: Shared) -> list[dict]:
+    run, sets = mnt / "run", ("train.epochs=4", "train.ckpt_every=2")
+    p = _start(d, "train", sh.env, *_train(sh.data, run, *sets))
+    try:
+        saved = _wait_until(lambda: bool(_steps(run / "checkpoints")), p)
+        filled = _fill(mnt / "filler")
+    finally:
+        r = _wait(p)
+    last = (r["err"].strip().splitlines() or [""])[-1]
+    named = re.search(r"last good checkpoint \(step (\d+)\)", last)
+    intact = bool(named) and _loads(run, int(named.group(1)), d / "named_step")
+    (mnt / "filler").unlink(missing_ok=True)
+    again = _cli(d, "resume", sh.env, *_train(sh.data, run, *sets, extra=["--resume"]))
+    steps, total = _summary_steps(run)
+    checks = {"checkpoint before the fill": saved, "rc 1": r["rc"] == 1,
+              "last line 'error: could not save'": last.startswith("error: could not save"),
+              "says 'the disk is full'": "the disk is full" in last, "named step loads": intact,
+              "no 'Traceback'": "Traceback" not in r["out"] + r["err"], "resume rc 0": again["rc"] == 0,
+              "resume finished": steps is not None and steps == total}
+    return [_row("5", "train into a 40 MiB tmpfs, fill it after the first checkpoint; free it, `--resume`",
+                 "rc 1, last line 'error: could not save … the disk is full' naming an intact step; resume rc 0",
+                 r, checks, key=last, note=f"filled {filled / 2**20:.1f} MiB; resume rc {again['rc']}, "
+                 f"{steps}/{total} steps")]
+
+
+def _fill(path: Path) -> int:
+    """Write zeros until 4 KiB are left on path's filesystem (or it refuses); bytes written."""
+    st = os.statvfs(path.parent)
+    left, written = st.f_bavail * st.f_frsize - 4096, 0
+    try:
+        with open(path, "wb") as f:
+            while written < left:
+                written += f.write(bytes(min(1 << 20, left - written)))
+                f.flush()
+    except OSError:
+        pass
+    return written
+
+
+def _loads(run: Path, step: int, scratch: Path) -> bool:
+    """Does checkpoint `step` of `run` restore, checksums included? (copied alone into `scratch`)"""
+    from ffjax.train import checkpoint
+
+    src = run / "checkpoints" / str(step)
+    if not src.is_dir():
+        return False
+    shutil.copytree(src, scratch / "checkpoints" / str(step))
+    shutil.copy2(run / "model.json", scratch / "model.json")
+    try:
+        checkpoint.load_checkpoint(scratch, "latest")
+    except Exception:  # noqa: BLE001 - any failure to restore means the step is not intact
+        return False
+    return True
+
+
+def case6(d: Path, sh: Shared) -> list[dict]:
+    """A truncated newest checkpoint: --resume moves it aside and continues from the step before."""
+    run = d / "run"
+    shutil.copytree(sh.run, run)
+    *_, older, newest = _steps(run / "checkpoints")
+    target = _largest(run / "checkpoints" / str(newest) / "state" / "ocdbt.process_0" / "d")
+    target.write_bytes(target.read_bytes()[: target.stat().st_size // 2])
+    r = _cli(d, "resume", sh.env, *_train(sh.data, run, "train.epochs=3", "train.ckpt_every=3", extra=["--resume"]))
+    steps, total = _summary_steps(run)
+    text = r["out"] + r["err"]
+    return [_row("6", f"truncate the largest state file of checkpoint {newest} to half, `--resume` to 3 epochs",
+                 f"rc 0, 'resuming from step {older}', {newest}.corrupt kept", r,
+                 {"rc 0": r["rc"] == 0, f"'resuming from step {older}'": f"resuming from step {older}," in text,
+                  f"{newest}.corrupt exists": (run / "checkpoints" / f"{newest}.corrupt").is_dir(),
+                  "all steps done": steps is not None and steps == total, "no 'Traceback'": "Traceback" not in text},
+                 key=_line(text, "resuming from step")[-160:], note=f"{steps}/{total} steps")]
+
+
+def case7_inputs(d: Path, sh: Shared) -> list[dict]:
+    """One-line errors for bad paths, flags and files that need no trained model."""
+    evil = d / "EVIL.pth"
+    evil.write_bytes(pickle.dumps(_Payload()))
+    evil_zip = _torch_zip(d / "EVIL_ZIP.pth", pickle.dumps({"w": _Payload()}, protocol=2))
+    (d / "FILE").write_text("a regular file\n")
+    (d / "empty").mkdir()
+    train = lambda out, *extra: _train(sh.data, d / out, extra=extra)  # noqa: E731
+    specs = [
+        ("7a", "`export --checkpoint MISSING`", ["ffjax.export", "--checkpoint", d / "MISSING", "--out",
+                                                 d / "x.jaxexport"], ["MISSING"]),
+        ("7b", "`live --checkpoint MISSING`", ["ffjax.live", "--checkpoint", d / "MISSING", "--video",
+                                               d / "v.mp4", "--headless"], ["MISSING"]),
+        ("7e", "`train --resume` into an empty folder", train("empty", "--resume"), ["nothing to resume"]),
+        ("7f", "`train --pretrained MISSING`", train("r_f", "--pretrained", d / "MISSING"), ["--pretrained"]),
+        ("7g", "`train --init dinov2:EVIL.pth` (a plain pickle running `echo pwned`)",
+         train("r_g", "--init", f"dinov2:{evil}"), ["EVIL.pth"]),
+        ("7h", "`train --init dinov2:EVIL_ZIP.pth` (the same payload in a torch zip)",
+         train("r_h", "--init", f"dinov2:{evil_zip}"), ["EVIL_ZIP.pth"]),
+        ("7i", "`train --set train.batch_size=100000`", _train(sh.data, d / "r_i", "train.batch_size=100000"),
+         ["batch"]),
+        ("7m", "`experiments.ablation --methods bogus`", ["experiments.ablation", "--preset", "smoke", "--data",
+                                                          sh.data, "--out", d / "abl", "--methods", "bogus"],
+         ["bogus"]),
+        ("7n", "`experiments.ablation --out FILE/sub` (FILE a regular file)",
+         ["experiments.ablation", "--preset", "smoke", "--data", sh.data, "--out", d / "FILE" / "sub", "--methods",
+          METHOD], ["FILE"]),
+    ]
+    return [_refusal(d, sh.env, *s, absent=("pwned",) if s[0] in ("7g", "7h") else ()) for s in specs]
+
+
+def _refusal(d: Path, env: dict, tag: str, what: str, args: list, must: list, absent=()) -> dict:
+    """Run one command that must fail with a one-line error."""
+    r = _cli(d, tag, env, *args)
+    return _row(tag, what, ERRORS, r, _error_checks(r, (1, 2), must, absent))
+
+
+def case7_models(d: Path, sh: Shared) -> list[dict]:
+    """One-line errors for a good model with a bad source, and for damaged bundles."""
+    live = ["ffjax.live", "--video", sh.video, "--headless", "--checkpoint"]
+    damaged = {}
+    for name, damage in (("truncated", lambda b: _halve(b / "variables.msgpack")),
+                         ("foreign", lambda b: (b / "model.json").write_text('{"hello": 1}')),
+                         ("cut", lambda b: _halve(b / "model.json"))):
+        damaged[name] = shutil.copytree(sh.bundle, d / f"bundle_{name}")
+        damage(damaged[name])
+    specs = [
+        ("7c", "`live --video MISSING.mp4`", ["ffjax.live", "--checkpoint", sh.run, "--video", d / "MISSING.mp4",
+                                              "--headless"], ["MISSING.mp4"]),
+        ("7d", "`live --camera 99`", ["ffjax.live", "--checkpoint", sh.run, "--camera", 99, "--headless"],
+         ["camera 99"]),
+        ("7j", "`live` on a bundle with variables.msgpack cut in half", live + [damaged["truncated"]],
+         ["variables.msgpack"]),
+        ("7k", "`live` on a bundle whose model.json is `{\"hello\": 1}`", live + [damaged["foreign"]], ["model.json"]),
+        ("7l", "`live` on a bundle whose model.json is cut in half", live + [damaged["cut"]], ["model.json"]),
+    ]
+    return [_refusal(d, sh.env, *s) for s in specs]
+
+
+def _halve(path: Path) -> None:
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+
+def case8(d: Path, sh: Shared) -> list[dict]:
+    """Training refuses a 16-bit or a grayscale frame in a CSV split, and a 2x2 render size, before any work."""
+    import cv2
+    import numpy as np
+
+    rows = []
+    for tag, name, frame, must in (("8a", "16-bit", np.full((24, 32, 3), 1500, np.uint16), ["002.png", "uint16",
+                                                                                          "8-bit"]),
+                                   ("8b", "grayscale", np.full((24, 32), 100, np.uint8), ["002.png", "grayscale"])):
+        train_csv, val_csv = _csv_split(d / tag / "train", 6, 0), _csv_split(d / tag / "val", 3, 1)
+        cv2.imwrite(str(train_csv.parent / "tactile" / "002.png"), frame)
+        out = d / tag / "run"
+        r = _cli(d, tag, sh.env, *_train(train_csv, out, extra=["--val", val_csv]))
+        rows.append(_row(tag, f"`train --data TRAIN.csv --val VAL.csv`, row 2's frame {name}",
+                         "exit 2 naming the file, before any work", r,
+                         {**_error_checks(r, (2,), must), "no --out folder": not out.exists()}))
+    out = d / "8c_run"
+    r = _cli(d, "8c", sh.env, *_train(sh.data, out, "data.render_size=[2,2]"))
+    rows.append(_row("8c", "`train --set data.render_size=[2,2]`", "exit 2 (config refused)", r,
+                     {**_error_checks(r, (2,), ["render_size"]), "no --out folder": not out.exists()}))
+    return rows
+
+
+def _csv_split(folder: Path, n: int, seed: int) -> Path:
+    """A release-layout split: data.csv (tactile, depth, FT), tactile/*.png, depth/*.npy, background.png."""
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    (folder / "tactile").mkdir(parents=True)
+    (folder / "depth").mkdir()
+    cv2.imwrite(str(folder / "background.png"), np.full((24, 32, 3), 100, np.uint8))
+    lines = ["tactile,depth,FT"]
+    for i in range(n):
+        cv2.imwrite(str(folder / f"tactile/{i:03d}.png"), rng.integers(0, 256, (24, 32, 3), dtype=np.uint8))
+        np.save(folder / f"depth/{i:03d}.npy", rng.uniform(0, 1, (24, 32)))
+        lines.append(f"tactile/{i:03d}.png,depth/{i:03d}.npy,{i} -{i} {i + 1}.5 0 0 0")
+    (folder / "data.csv").write_text("\n".join(lines) + "\n")
+    return folder / "data.csv"
+
+
+def case9(d: Path, sh: Shared) -> list[dict]:
+    """A 32 KiB .pth whose storage inflates to 32 MiB is refused before anything is inflated."""
+    declared = 32 << 20
+    bomb = _torch_zip(d / "BOMB.pth", ONE_TENSOR_PKL, bytes(declared))
+    base = _cli(d, "baseline", sh.env, "-c", "import ffjax.train")  # `python -m -c` is `python -c`
+    out = d / "run"
+    r = _cli(d, "bomb", sh.env, *_train(sh.data, out, extra=["--init", f"dinov2:{bomb}"]))
+    grew = r["peak_mib"] - base["peak_mib"]
+    return [_row("9", f"`train --init dinov2:BOMB.pth` ({bomb.stat().st_size / 1024:.0f} KiB file declaring a "
+                 f"{declared >> 20} MiB storage)", "exit 2 'declares … more than the whole file'; peak RSS far "
+                 "below baseline + 32 MiB", r,
+                 {**_error_checks(r, (2,), ["declares", "more than the whole file"]), "baseline rc 0": base["rc"] == 0,
+                  "peak RSS < baseline + 8 MiB": grew < declared / 4 / 2**20, "no --out folder": not out.exists()},
+                 note=f"peak RSS {r['peak_mib']:.0f} MiB vs {base['peak_mib']:.0f} MiB for a bare "
+                 f"`import ffjax.train` (+{grew:.1f} MiB)")]
+
+
+CASES = [("1", case1), ("2", case2), ("3", case3), ("4", case4), ("5", case5), ("6", case6), ("7", case7_inputs),
+         ("7", case7_models), ("8", case8), ("9", case9)]
+
+
+# ---- driver and report --------------------------------------------------------------------------------
+
+
+def run_cases(out: Path, env: dict, progress: bool) -> list[dict]:
+    """Build the shared fixtures, run every case in OUT/cases/caseN/, return the rows (sorted by case)."""
+    root = out / "cases"
+    sh = build_shared(root / "_shared", env)
+    rows = []
+    for name, fn in tqdm(CASES, desc="faults cases", disable=not progress):
+        rows += run_case(fn, root / f"case{name}" / fn.__name__, sh, name)
+    return [_shorten(r, out) for r in sorted(rows, key=lambda r: r["case"])]
+
+
+def run_case(fn, folder: Path, sh: Shared, name: str) -> list[dict]:
+    """fn's rows, run in a fresh `folder`; a harness exception is a failing row (traceback in folder/error.txt)."""
+    _clear(folder)
+    folder.mkdir(parents=True)
+    try:
+        return fn(folder, sh)
+    except Exception as e:  # noqa: BLE001 - reported as this case's failure, the other cases still run
+        (folder / "error.txt").write_text(traceback.format_exc())
+        res = {"rc": None, "out": "", "err": f"harness error: {type(e).__name__}: {e}", "cmd": "", "seconds": None,
+               "peak_mib": None}
+        return [_row(name, fn.__doc__.splitlines()[0], "", res, {"harness ran": False})]
+
+
+def _shorten(row: dict, out: Path) -> dict:
+    """Paths under `out` as OUT/... in the texts a report shows."""
+    for k in ("key_line", "note", "cmd", "what"):
+        if isinstance(row.get(k), str):
+            row[k] = row[k].replace(str(out), "OUT")
+    return row
+
+
+def _clear(folder: Path) -> None:
+    if folder.exists():
+        shutil.rmtree(folder)
+
+
+def _code(text: str, limit: int = 220) -> str:
+    """`text` as a Markdown table cell's code span (cut at `limit` characters)."""
+    text = text if len(text) <= limit else text[: limit - 1] + "…"
+    return "`` " + text.replace("|", "\\|").replace("``", "` `") + " ``" if text else "–"
+
+
+def _measured(row: dict) -> str:
+    if row.get("skipped"):
+        return f"skipped: {row['skipped']}"
+    checks = ", ".join(f"{k} {'✓' if v else '✗'}" for k, v in row["checks"].items())
+    note = f"; {row['note']}" if row["note"] else ""
+    return (f"rc {row['rc']}, {row['stderr_lines']} stderr line(s): {_code(row['key_line'])}{note}; "
+            f"checks: {checks}").replace("|", "\\|")
+
+
+def cases_md(rows: list[dict]) -> str:
+    """The rows as a Markdown table (case | what was done | expected | measured | pass) and a count."""
+    head = ["case", "what was done", "expected", "measured (rc, stderr lines, the key line, checks)", "pass"]
+    table = [[r["case"], r["what"], r["expected"], _measured(r),
+              "skipped" if r["pass"] is None else "yes" if r["pass"] else "**NO**"] for r in rows]
+    passed = sum(r["pass"] is True for r in rows)
+    skipped = sum(r["pass"] is None for r in rows)
+    return common.md_table(head, table) + (f"\n{passed} of {len(rows)} commands pass"
+                                           + (f", {skipped} skipped" if skipped else "") + ".\n")
