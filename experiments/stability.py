@@ -507,17 +507,35 @@ def write_all(results: dict, out: Path) -> None:
     common.write_json(out / "results.json", results)
 
 
-def _curve(ax, e: dict, m: str, color) -> None:
+_MARKERS, _LINES = "osD^v<>", ("-", "--", ":", "-.")
+
+
+def _curve(ax, e: dict, m: str, k: int, color, label: str, multi_seed: bool) -> None:
     v = e["methods"][m]
     x = e["levels"]
-    ax.errorbar(x, v["nl1"], yerr=v["std"], fmt="o-", color=color, capsize=2, ms=4, label=_name(m))
+    # a marker and line style per method: equal curves (DINO_F R and DINO_F RD) stay visible on each other
+    ax.errorbar(x, v["nl1"], yerr=v["std"] if multi_seed else None, fmt=_MARKERS[k % len(_MARKERS)],
+                ls=_LINES[k % len(_LINES)], color=color, capsize=2 if multi_seed else 0, ms=5 - 0.5 * (k % 3),
+                mfc="none" if k % 2 else color, label=label)
     ax.axhline(2 * v["nl1"][e["ref"]], color=color, ls=":", lw=0.8)
     if v["doubles_at"] is not None:
         ax.axvline(v["doubles_at"], color=color, ls="--", lw=0.8)
         ax.plot([v["doubles_at"]], [2 * v["nl1"][e["ref"]]], marker="x", color=color, ms=8)
 
 
+def _labels(e: dict) -> dict:
+    """Paper names, with '(= other)' for a method whose curve equals an earlier one's."""
+    out, seen = {}, {}
+    for m, v in e["methods"].items():
+        key = tuple(round(x, 6) for x in v["nl1"])
+        out[m] = _name(m) + (f" (= {_name(seen[key])})" if key in seen else "")
+        seen.setdefault(key, m)
+    return out
+
+
 def plot(results: dict, out: Path) -> list[Path]:
+    """stability_<factor>.png per factor, stability.png (all factors) and seeds.png, each stamped with preset,
+    seeds and commit; error bars only over >= 2 seeds; legends outside the axes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -526,45 +544,57 @@ def plot(results: dict, out: Path) -> list[Path]:
     colors = dict(zip(results["methods"], plt.cm.tab10(np.arange(len(results["methods"])))))
     paths = []
     fz_max = float(results["config"]["data"]["fz_max"])
+    multi_seed = len(results["seeds"]) >= 2
+
+    def stamp(fig):
+        common.stamp(fig, results["preset"], results["seeds"], results.get("commit", "?"))
+
+    def legend(ax):
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)
 
     def draw(ax, fn, e):
-        for m in e["methods"]:
-            _curve(ax, e, m, colors[m])
+        labels = _labels(e)
+        for k, m in enumerate(e["methods"]):
+            _curve(ax, e, m, k, colors[m], labels[m], multi_seed)
         if fn == "force":
             ax.axvspan(fz_max, max(e["levels"]) + fz_max / 6, color="0.9", zorder=0, label="beyond training")
         ax.set_xlabel(e["label"], fontsize=8)
         ax.set_ylabel("normalized L1 error (%)", fontsize=8)
-        ax.set_title(f"{fn} (x = doubles; dotted = 2x nominal)", fontsize=9)
+        ax.set_title(f"{fn.replace('_', ' ')} (x: error doubles; dotted: 2x nominal)", fontsize=9)
 
     for fn, e in results["factors"].items():
-        fig, ax = plt.subplots(figsize=(5.5, 3.8))
+        fig, ax = plt.subplots(figsize=(7.5, 3.8))
         draw(ax, fn, e)
-        ax.legend(fontsize=7)
+        legend(ax)
+        stamp(fig)
         paths.append(save_png(fig, out / f"stability_{fn}.png"))
     n = len(results["factors"])
     cols = min(3, n)
-    fig, axes = plt.subplots((n + cols - 1) // cols, cols, figsize=(5 * cols, 3.6 * ((n + cols - 1) // cols)),
+    fig, axes = plt.subplots((n + cols - 1) // cols, cols, figsize=(5 * cols + 2, 3.6 * ((n + cols - 1) // cols)),
                              squeeze=False)
     for ax, (fn, e) in zip(axes.flat, results["factors"].items()):
         draw(ax, fn, e)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
-    axes.flat[0].legend(fontsize=7)
-    fig.suptitle(f"Stability ({results['preset']}, seeds {results['seeds']})")
+    legend(axes.flat[min(n, cols) - 1])
+    fig.suptitle(f"Stability: error against each factor (preset {results['preset']}, seeds {results['seeds']})")
+    stamp(fig)
     paths.append(save_png(fig, out / "stability.png"))
 
     ss = results["seed_spread"]
-    fig, ax = plt.subplots(figsize=(6, 3.6))
+    fig, ax = plt.subplots(figsize=(7.5, 3.8))
     keys = ("unseen_objects", "unseen_sensors", "digit")
     for i, (m, v) in enumerate(ss.items()):
         for j, k in enumerate(keys):
             vals = v[k]["values"]
             ax.scatter([j + 0.12 * (i - len(ss) / 2)] * len(vals), vals, color=colors.get(m), s=14,
-                       label=_name(m) if j == 0 else None)
+                       marker=_MARKERS[i % len(_MARKERS)], label=_name(m) if j == 0 else None)
     ax.set_xticks(range(len(keys)))
-    ax.set_xticklabels(["unseen objects", "Table II mean", "DIGIT"])
-    ax.set_ylabel("normalized L1 error (%), one dot per seed")
-    ax.legend(fontsize=7)
+    ax.set_xticklabels(["unseen objects (Table I mean)", "Table II mean", "DIGIT"])
+    ax.set_ylabel("normalized L1 error (%)")
+    ax.set_title(f"Seed to seed spread: one dot per seed ({len(results['seeds'])} seeds)", fontsize=10)
+    legend(ax)
+    stamp(fig)
     paths.append(save_png(fig, out / "seeds.png"))
     return paths
 
