@@ -2,12 +2,16 @@
 points, resume each time, and check that nothing was lost.
 
     python -m experiments.faults [--preset smoke] [--kills N] [--out DIR] [--ablation] [--seed S]
+                                 [--cases | --only-cases]
 
 Each part runs the real CLI in a subprocess: once uninterrupted (the reference), then again in a fresh
 folder that is SIGKILLed after a random delay, resumed, killed again, N times, and finally run to the end.
 After every kill the folder is checked (the newest checkpoint must load; finished dataset shards must
 be untouched by the next resume). At the end the results must equal the reference: training params and
-validation metrics bitwise, every dataset shard byte for byte, the ablation's tables. Writes
+validation metrics bitwise, every dataset shard byte for byte, the ablation's tables. --cases also runs
+issue 17's nine numbered cases (experiments.faults_cases: bad sources, NaN and corrupt weights, bad flags,
+two writers, a full disk, a truncated checkpoint, one-line errors, bad training frames, a zip bomb), each
+through the real CLIs, measured and checked; --only-cases runs just those (a few minutes). Writes
 DIR/results.json and DIR/report.md.
 """
 
@@ -26,7 +30,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from experiments import common
+from experiments import common, faults_cases
 
 TRAIN_METHOD = "dino_rd_scratch"  # no pretraining stage: the kill points land in training itself
 # A few more, smaller shards than the smoke preset so dataset kills land between shards.
@@ -41,41 +45,53 @@ def main(argv=None) -> dict:
     ap.add_argument("--epochs", type=int, default=6, help="training epochs (longer runs: more kill points)")
     ap.add_argument("--ablation", action="store_true", help="also kill/resume the smoke ablation sweep")
     ap.add_argument("--seed", type=int, default=0, help="seed of the kill points")
+    ap.add_argument("--cases", action="store_true", help="also run issue 17's numbered cases (faults_cases)")
+    ap.add_argument("--only-cases", action="store_true", help="run only the numbered cases, no kill/resume part")
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
     out = Path(args.out or common.ROOT / "results" / f"faults-{args.preset}").absolute()
     if args.kills < 0:
         ap.error("--kills must be >= 0")
+    if args.only_cases and args.ablation:
+        ap.error("--only-cases runs no kill/resume part: drop --ablation (or use --cases)")
     command = "python -m experiments.faults " + " ".join(sys.argv[1:] if argv is None else argv)
     res = run(args.preset, args.kills, out, args.epochs, args.ablation, args.seed, progress=not args.quiet,
-              command=command)
+              command=command, cases=args.cases or args.only_cases, kill_parts=not args.only_cases)
     print(report_md(res))
     print(f"wrote {out}/results.json and report.md")
     return res
 
 
 def run(preset: str, kills: int, out: Path, epochs: int, ablation: bool, seed: int, progress: bool = True,
-        command: str = "") -> dict:
-    """Every part (dataset, train, optionally ablation); writes and returns the results dict."""
+        command: str = "", cases: bool = False, kill_parts: bool = True) -> dict:
+    """Every kill/resume part (dataset, train, optionally ablation) unless not `kill_parts`, then the numbered
+    cases if `cases`; writes and returns the results dict."""
     out.mkdir(parents=True, exist_ok=True)
-    rng = random.Random(seed)
     env = _env(out)
     t0 = time.perf_counter()
-    parts = {}
-    ref_data = out / "data_ref"
-    parts["dataset"] = dataset_part(preset, kills, out, ref_data, env, rng, progress)
-    parts["train"] = train_part(preset, kills, out, ref_data, epochs, env, rng, progress)
-    if ablation:
-        parts["ablation"] = ablation_part(preset, kills, out, ref_data, env, rng, progress)
+    parts = _kill_parts(preset, kills, out, epochs, ablation, seed, env, progress) if kill_parts else {}
     totals = {k: sum(p[k] for p in parts.values()) for k in ("kills_injected", "kills_landed", "survived")}
     totals["data_lost"] = any(p["data_lost"] for p in parts.values())
     totals["corrupt_checkpoints"] = sum(p.get("corrupt_found", 0) for p in parts.values())
     res = {"preset": preset, "kills_per_part": kills, "seed": seed, "epochs": epochs,
-           "command": command, "commit": common.git_commit(),
-           "wall_s": round(time.perf_counter() - t0, 1), "totals": totals, "parts": parts}
+           "command": command, "commit": common.git_commit(), "totals": totals, "parts": parts}
+    if cases:
+        res["cases"] = faults_cases.run_cases(out, env, progress)
+    res["wall_s"] = round(time.perf_counter() - t0, 1)
     common.write_json(out / "results.json", res)
     common.write_text(out / "report.md", report_md(res))
     return res
+
+
+def _kill_parts(preset, kills, out, epochs, ablation, seed, env, progress) -> dict:
+    """The kill/resume parts: dataset generation, training and (with `ablation`) the ablation sweep."""
+    rng = random.Random(seed)
+    ref_data = out / "data_ref"
+    parts = {"dataset": dataset_part(preset, kills, out, ref_data, env, rng, progress),
+             "train": train_part(preset, kills, out, ref_data, epochs, env, rng, progress)}
+    if ablation:
+        parts["ablation"] = ablation_part(preset, kills, out, ref_data, env, rng, progress)
+    return parts
 
 
 def _env(out: Path) -> dict:
@@ -334,13 +350,24 @@ def _clear(folder: Path) -> None:
 
 
 def report_md(res: dict) -> str:
+    """The kill/resume table and totals (when those parts ran), then the numbered cases' table (when run)."""
+    text = f"# Fault injection ({res['preset']} preset)\n\n`{res['command']}` — {res['wall_s']} s wall, " \
+           f"commit {res['commit']}\n\n"
+    if res["parts"]:
+        text += _parts_md(res)
+    if "cases" in res:
+        text += "\n## Numbered cases (issue 17)\n\nSmoke preset, each through the real CLI in a subprocess; " \
+                "OUT is the results folder.\n\n" + faults_cases.cases_md(res["cases"])
+    return text
+
+
+def _parts_md(res: dict) -> str:
     t = res["totals"]
     rows = [[name, p["kills_injected"], p["kills_landed"], p["survived"], p["corrupt_found"],
              "yes" if p["data_lost"] else "no", p["comparison"]] for name, p in res["parts"].items()]
     head = ["part", "kills injected", "landed (process alive)", "survived", "corrupt checkpoints", "data lost",
             "compared with the uninterrupted reference"]
-    return (f"# Fault injection ({res['preset']} preset)\n\n`{res['command']}` — {res['wall_s']} s wall, "
-            f"commit {res['commit']}\n\n" + common.md_table(head, rows)
+    return (common.md_table(head, rows)
             + f"\nTotal: {t['kills_injected']} SIGKILLs injected, {t['kills_landed']} landed while the process "
             f"ran, {t['survived']} survived; corrupt checkpoints found: {t['corrupt_checkpoints']}; data lost: "
             f"{'YES' if t['data_lost'] else 'no'}.\n")

@@ -40,6 +40,8 @@ ONE_TENSOR_PKL = (b"\x80\x02ccollections\nOrderedDict\n)RX\x01\x00\x00\x00wctorc
                   b"X\x07\x00\x00\x00storagectorch\nFloatStorage\nX\x01\x00\x00\x000X\x03\x00\x00\x00cpuK\x04tQ"
                   b"K\x00K\x04\x85K\x01\x85\x89tRs.")
 ERRORS = "exit 1/2, one `error:` line, no traceback"
+FULL_DISK = ("train into a 40 MiB tmpfs, fill it after the first checkpoint; free it, `--resume`",
+             "rc 1, last line 'error: could not save … the disk is full' naming an intact step; resume rc 0")
 
 
 @dataclass
@@ -64,12 +66,13 @@ class _Payload:
 # ---- running commands ---------------------------------------------------------------------------------
 
 
-def _start(folder: Path, name: str, env: dict, *args) -> subprocess.Popen:
-    """Start `python -m args` from the repository root, stdout/stderr to folder/name.{stdout,stderr}."""
-    args = [str(a) for a in args]
+def _start(folder: Path, name: str, env: dict, *args, module: bool = True) -> subprocess.Popen:
+    """Start `python -m args` (`python args` if not `module`) from the repository root, stdout and stderr to
+    folder/name.stdout and .stderr."""
+    args = ["-m"] * module + [str(a) for a in args]
     with open(folder / f"{name}.stdout", "w") as out, open(folder / f"{name}.stderr", "w") as err:
-        p = subprocess.Popen([sys.executable, "-m", *args], env=env, cwd=common.ROOT, stdout=out, stderr=err)
-    p.logs, p.cmd, p.t0 = (folder / f"{name}.stdout", folder / f"{name}.stderr"), "python -m " + " ".join(args), \
+        p = subprocess.Popen([sys.executable, *args], env=env, cwd=common.ROOT, stdout=out, stderr=err)
+    p.logs, p.cmd, p.t0 = (folder / f"{name}.stdout", folder / f"{name}.stderr"), "python " + " ".join(args), \
         time.perf_counter()
     return p
 
@@ -93,9 +96,9 @@ def _wait(p: subprocess.Popen, timeout: float = TIMEOUT) -> dict:
             "cmd": p.cmd, "seconds": round(time.perf_counter() - p.t0, 1)}
 
 
-def _cli(folder: Path, name: str, env: dict, *args) -> dict:
-    """Run `python -m args` to the end; see _wait."""
-    return _wait(_start(folder, name, env, *args))
+def _cli(folder: Path, name: str, env: dict, *args, module: bool = True) -> dict:
+    """Run `python -m args` to the end; see _start and _wait."""
+    return _wait(_start(folder, name, env, *args, module=module))
 
 
 def _wait_until(cond, p: subprocess.Popen, timeout: float = 300.0) -> bool:
@@ -340,13 +343,11 @@ def case4(d: Path, sh: Shared) -> list[dict]:
 
 def case5(d: Path, sh: Shared) -> list[dict]:
     """A disk that fills mid-run: one clear error naming an intact step; --resume after freeing space."""
-    what = "train into a 40 MiB tmpfs, fill it after the first checkpoint; free it, `--resume`"
-    expected = "rc 1, last line 'error: could not save … the disk is full' naming an intact step; resume rc 0"
     mnt = d / "tmpfs"
     mnt.mkdir()
     m = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=40m", "tmpfs", str(mnt)], capture_output=True, text=True)
     if m.returncode:
-        return [_skipped("5", what, expected, f"mount failed: {(m.stderr or m.stdout).strip()[:200]}")]
+        return [_skipped("5", FULL_DISK[0], FULL_DISK[1], f"mount failed: {(m.stderr or m.stdout).strip()[:200]}")]
     try:
         return _full_disk(d, mnt, sh)
     finally:
@@ -372,10 +373,8 @@ def _full_disk(d: Path, mnt: Path, sh: Shared) -> list[dict]:
               "says 'the disk is full'": "the disk is full" in last, "named step loads": intact,
               "no 'Traceback'": "Traceback" not in r["out"] + r["err"], "resume rc 0": again["rc"] == 0,
               "resume finished": steps is not None and steps == total}
-    return [_row("5", "train into a 40 MiB tmpfs, fill it after the first checkpoint; free it, `--resume`",
-                 "rc 1, last line 'error: could not save … the disk is full' naming an intact step; resume rc 0",
-                 r, checks, key=last, note=f"filled {filled / 2**20:.1f} MiB; resume rc {again['rc']}, "
-                 f"{steps}/{total} steps")]
+    note = f"filled {filled / 2**20:.1f} MiB; resume rc {again['rc']}, {steps}/{total} steps"
+    return [_row("5", *FULL_DISK, r, checks, key=last, note=note)]
 
 
 def _fill(path: Path) -> int:
@@ -433,18 +432,19 @@ def case7_inputs(d: Path, sh: Shared) -> list[dict]:
     evil_zip = _torch_zip(d / "EVIL_ZIP.pth", pickle.dumps({"w": _Payload()}, protocol=2))
     (d / "FILE").write_text("a regular file\n")
     (d / "empty").mkdir()
-    train = lambda out, *extra: _train(sh.data, d / out, extra=extra)  # noqa: E731
     specs = [
         ("7a", "`export --checkpoint MISSING`", ["ffjax.export", "--checkpoint", d / "MISSING", "--out",
                                                  d / "x.jaxexport"], ["MISSING"]),
         ("7b", "`live --checkpoint MISSING`", ["ffjax.live", "--checkpoint", d / "MISSING", "--video",
                                                d / "v.mp4", "--headless"], ["MISSING"]),
-        ("7e", "`train --resume` into an empty folder", train("empty", "--resume"), ["nothing to resume"]),
-        ("7f", "`train --pretrained MISSING`", train("r_f", "--pretrained", d / "MISSING"), ["--pretrained"]),
+        ("7e", "`train --resume` into an empty folder", _train(sh.data, d / "empty", extra=["--resume"]),
+         ["nothing to resume"]),
+        ("7f", "`train --pretrained MISSING`", _train(sh.data, d / "r_f", extra=["--pretrained", d / "MISSING"]),
+         ["--pretrained"]),
         ("7g", "`train --init dinov2:EVIL.pth` (a plain pickle running `echo pwned`)",
-         train("r_g", "--init", f"dinov2:{evil}"), ["EVIL.pth"]),
+         _train(sh.data, d / "r_g", extra=["--init", f"dinov2:{evil}"]), ["EVIL.pth"]),
         ("7h", "`train --init dinov2:EVIL_ZIP.pth` (the same payload in a torch zip)",
-         train("r_h", "--init", f"dinov2:{evil_zip}"), ["EVIL_ZIP.pth"]),
+         _train(sh.data, d / "r_h", extra=["--init", f"dinov2:{evil_zip}"]), ["EVIL_ZIP.pth"]),
         ("7i", "`train --set train.batch_size=100000`", _train(sh.data, d / "r_i", "train.batch_size=100000"),
          ["batch"]),
         ("7m", "`experiments.ablation --methods bogus`", ["experiments.ablation", "--preset", "smoke", "--data",
@@ -534,7 +534,7 @@ def case9(d: Path, sh: Shared) -> list[dict]:
     """A 32 KiB .pth whose storage inflates to 32 MiB is refused before anything is inflated."""
     declared = 32 << 20
     bomb = _torch_zip(d / "BOMB.pth", ONE_TENSOR_PKL, bytes(declared))
-    base = _cli(d, "baseline", sh.env, "-c", "import ffjax.train")  # `python -m -c` is `python -c`
+    base = _cli(d, "baseline", sh.env, "-c", "import ffjax.train", module=False)
     out = d / "run"
     r = _cli(d, "bomb", sh.env, *_train(sh.data, out, extra=["--init", f"dinov2:{bomb}"]))
     grew = r["peak_mib"] - base["peak_mib"]
@@ -560,7 +560,7 @@ def run_cases(out: Path, env: dict, progress: bool) -> list[dict]:
     sh = build_shared(root / "_shared", env)
     rows = []
     for name, fn in tqdm(CASES, desc="faults cases", disable=not progress):
-        rows += run_case(fn, root / f"case{name}" / fn.__name__, sh, name)
+        rows += run_case(fn, root / fn.__name__, sh, name)
     return [_shorten(r, out) for r in sorted(rows, key=lambda r: r["case"])]
 
 
@@ -593,7 +593,7 @@ def _clear(folder: Path) -> None:
 def _code(text: str, limit: int = 220) -> str:
     """`text` as a Markdown table cell's code span (cut at `limit` characters)."""
     text = text if len(text) <= limit else text[: limit - 1] + "…"
-    return "`` " + text.replace("|", "\\|").replace("``", "` `") + " ``" if text else "–"
+    return "`` " + text.replace("``", "` `") + " ``" if text else "–"
 
 
 def _measured(row: dict) -> str:
@@ -601,15 +601,14 @@ def _measured(row: dict) -> str:
         return f"skipped: {row['skipped']}"
     checks = ", ".join(f"{k} {'✓' if v else '✗'}" for k, v in row["checks"].items())
     note = f"; {row['note']}" if row["note"] else ""
-    return (f"rc {row['rc']}, {row['stderr_lines']} stderr line(s): {_code(row['key_line'])}{note}; "
-            f"checks: {checks}").replace("|", "\\|")
+    return f"rc {row['rc']}, {row['stderr_lines']} stderr line(s): {_code(row['key_line'])}{note}; checks: {checks}"
 
 
 def cases_md(rows: list[dict]) -> str:
     """The rows as a Markdown table (case | what was done | expected | measured | pass) and a count."""
     head = ["case", "what was done", "expected", "measured (rc, stderr lines, the key line, checks)", "pass"]
-    table = [[r["case"], r["what"], r["expected"], _measured(r),
-              "skipped" if r["pass"] is None else "yes" if r["pass"] else "**NO**"] for r in rows]
+    table = [[c.replace("|", "\\|") for c in (r["case"], r["what"], r["expected"], _measured(r))]
+             + ["skipped" if r["pass"] is None else "yes" if r["pass"] else "**NO**"] for r in rows]
     passed = sum(r["pass"] is True for r in rows)
     skipped = sum(r["pass"] is None for r in rows)
     return common.md_table(head, table) + (f"\n{passed} of {len(rows)} commands pass"

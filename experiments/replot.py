@@ -2,7 +2,8 @@
 
     python -m experiments.replot docs/results/ablation-quick [more folders ...]
 
-For Tables I-III folders (`experiments.ablation`) and stability folders (`experiments.stability`); the numbers
+For Tables I-III (`experiments.ablation`), stability (`experiments.stability`) and loss-sweep
+(`experiments.sweep_loss`) folders; the numbers
 are read back unchanged, only the text and plots are written again (the commit the numbers came from stays in
 results.json and on every figure).
 """
@@ -34,7 +35,12 @@ def replot(folder) -> str:
 
         stability.write_all(results, folder)
         return "stability"
-    raise ValueError(f"{folder}: results.json is not from experiments.ablation or experiments.stability")
+    if "per_beta" in results:
+        from experiments import sweep_loss
+
+        sweep_loss.write_all(results, folder)
+        return "sweep_loss"
+    raise ValueError(f"{folder}: results.json is not from experiments.ablation, .stability or .sweep_loss")
 
 
 def main(argv=None) -> int:

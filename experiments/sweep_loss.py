@@ -225,18 +225,21 @@ def plot(results: dict, path: Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FixedFormatter, FixedLocator, NullLocator
 
     pb = results["per_beta"]
     zero = pb.get("0")
     pos = sorted((v for v in pb.values() if v["beta"] > 0), key=lambda v: v["ratio"])
     shown = [m for m in ("unseen_objects", "unseen_sensors", "digit")
              if any(np.isfinite(v[m]["mean"]) for v in pb.values())]
+    multi = len(results["seeds"]) >= 2  # error bars (and "mean ± std") only over two or more seeds
     fig, axes = plt.subplots(1, 2 * len(shown), figsize=(4.6 * len(shown), 3.6), squeeze=False,
                              gridspec_kw={"width_ratios": [1, 4] * len(shown)})
     for i, m in enumerate(shown):
         a0, a1 = axes[0, 2 * i], axes[0, 2 * i + 1]
         if zero:
-            a0.errorbar([0], [zero[m]["mean"]], yerr=[zero[m]["std"]], fmt="s", color="C3", capsize=3)
+            a0.errorbar([0], [zero[m]["mean"]], yerr=[zero[m]["std"]] if multi else None, fmt="s", color="C3",
+                        capsize=3)
             a0.scatter([0] * len(zero["per_seed"]), [s[m] for s in zero["per_seed"]], s=10, color="k", alpha=0.5)
         a0.set_xticks([0])
         a0.set_xticklabels(["0\n(no head)"])
@@ -244,21 +247,26 @@ def plot(results: dict, path: Path) -> Path:
         a0.set_ylabel(f"{METRICS[m]}\nnormalized L1 error (%)", fontsize=8)
         if pos:
             x = [v["ratio"] for v in pos]
-            a1.errorbar(x, [v[m]["mean"] for v in pos], yerr=[v[m]["std"] for v in pos], fmt="o-", color="C0",
-                        capsize=3, label="mean ± std over seeds")
+            a1.errorbar(x, [v[m]["mean"] for v in pos], yerr=[v[m]["std"] for v in pos] if multi else None,
+                        fmt="o-", color="C0", capsize=3, label="mean ± std over seeds" if multi else "1 seed")
             for v in pos:
                 a1.scatter([v["ratio"]] * len(v["per_seed"]), [s[m] for s in v["per_seed"]], s=10, color="k",
                            alpha=0.5)
             a1.set_xscale("log")
+            # ticks at the swept ratios: a log axis over 0.1-10 otherwise labels only 10^0 and 10^1
+            a1.xaxis.set_major_locator(FixedLocator(x))
+            a1.xaxis.set_major_formatter(FixedFormatter([f"{r:g}" for r in x]))
+            a1.xaxis.set_minor_locator(NullLocator())
             if zero:
                 a1.axhline(zero[m]["mean"], color="C3", ls=":", lw=1, label="beta = 0")
-            a1.legend(fontsize=7)
+            a1.legend(fontsize=7, loc="best")
         a1.set_xlabel("beta / alpha (depth-loss weight)")
         a1.sharey(a0)
         a1.tick_params(labelleft=False)
         a1.set_title(METRICS[m], fontsize=9)
-    fig.suptitle(f"Loss-weight sweep ({results['base']}, preset {results['preset']}, "
+    fig.suptitle(f"Loss-weight sweep ({tables._name(results['base'])}, preset {results['preset']}, "
                  f"{len(results['seeds'])} seed(s))", fontsize=10)
+    common.stamp(fig, results["preset"], results["seeds"], results.get("commit", "?"))
     return tables.save_png(fig, Path(path))
 
 
