@@ -422,10 +422,14 @@ def plot(results: dict, path: Path) -> Path:
     fig, axes = plt.subplots(2, 2, figsize=(12, 9))
     for ax, (_, y, x, x_min, title) in zip(axes.ravel(), PANELS):
         xy = _xy(rows, y, x)
-        for r, (a, b) in zip(rows, xy):
+        on_front = set(pareto_front(xy, (x_min, True)))
+        for i, (r, (a, b)) in enumerate(zip(rows, xy)):
             ax.scatter(a, b, color=colours[r["method"]], marker=markers.get(r["size"], "o"), s=45, zorder=3)
-            ax.annotate(r["label"], (a, b), textcoords="offset points", xytext=(4, 3), fontsize=7)
-        front = sorted((xy[i] for i in pareto_front(xy, (x_min, True))), key=lambda p: p[0])
+            if i in on_front:  # only the front is labelled: all 20 labels collided into a blob; colour and marker
+                # (legend) name the others
+                ax.annotate(f"{tables._name(r['method'])} {r['size']}", (a, b), textcoords="offset points",
+                            xytext=(5, 4), fontsize=7)
+        front = sorted((xy[i] for i in on_front), key=lambda p: p[0])
         if front:
             fx, fy = zip(*front)
             ax.step(fx, fy, where="post" if x_min else "pre", color="k", lw=1, ls="--", zorder=2)
@@ -440,12 +444,13 @@ def plot(results: dict, path: Path) -> Path:
         ax.margins(x=0.12, y=0.08)  # room for the labels
         ax.set(title=title, xlabel=AXIS_LABELS[x], ylabel=AXIS_LABELS[y])
         ax.grid(alpha=0.3, which="both")
-    handles = [plt.Line2D([], [], color=colours[m], marker="o", ls="", label=m) for m in methods]
+    handles = [plt.Line2D([], [], color=colours[m], marker="o", ls="", label=tables._name(m)) for m in methods]
     handles += [plt.Line2D([], [], color="grey", marker=markers.get(s, "o"), ls="", label=s) for s in results["sizes"]]
     handles.append(plt.Line2D([], [], color="k", marker="o", mfc="none", ls="--", label="Pareto front"))
     fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 6), fontsize=8)
     fig.suptitle(f"Speed vs accuracy — {results['preset']} preset, commit {_short(results['commit'])}, "
                  f"{results['machine']['cpu_model']} (load {_la(results['machine']['loadavg_before'])})", fontsize=10)
+    common.stamp(fig, results["preset"], results.get("seeds", [0]), results.get("commit", "?"))
     fig.tight_layout(rect=(0, 0.06, 1, 0.96))
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -2,8 +2,8 @@
 
     python -m experiments.replot docs/results/ablation-quick [more folders ...]
 
-For Tables I-III (`experiments.ablation`), stability (`experiments.stability`) and loss-sweep
-(`experiments.sweep_loss`) folders; the numbers
+For Tables I-III (`experiments.ablation`), stability (`experiments.stability`) loss-sweep
+(`experiments.sweep_loss`) and speed-accuracy (`experiments.pareto`) folders; the numbers
 are read back unchanged, only the text and plots are written again (the commit the numbers came from stays in
 results.json and on every figure).
 """
@@ -40,7 +40,12 @@ def replot(folder) -> str:
 
         sweep_loss.write_all(results, folder)
         return "sweep_loss"
-    raise ValueError(f"{folder}: results.json is not from experiments.ablation, .stability or .sweep_loss")
+    if "cells" in results and "fronts" in results:
+        from experiments import pareto
+
+        pareto.write_all({**results, "markdown": pareto.markdown(results)}, folder)
+        return "pareto"
+    raise ValueError(f"{folder}: results.json is not from experiments.ablation, .stability, .sweep_loss or .pareto")
 
 
 def main(argv=None) -> int:
