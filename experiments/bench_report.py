@@ -253,15 +253,21 @@ def plots(res: dict, out: Path) -> list[str]:
     for axis, pts in sc.items():
         if not pts:
             continue
-        fig, ax = plt.subplots(figsize=(5, 3.4))
+        # time and memory side by side: twin y axes drew the two curves on top of each other, without a legend
+        fig, (ax, ax2) = plt.subplots(1, 2, figsize=(8.5, 3.4))
         xs = [str(p["x"]) for p in pts]
         ax.plot(xs, [p["ms"] for p in pts], "o-", color="C0")
-        ax.set_xlabel(labels.get(axis, axis))
-        ax.set_ylabel("train step, ms", color="C0")
-        ax2 = ax.twinx()
-        ax2.plot(xs, [p["peak_mib"] for p in pts], "s--", color="C1")
-        ax2.set_ylabel("compiled peak memory, MiB", color="C1")
-        ax.set_title(f"quick ViT dino_rd: scaling with {labels.get(axis, axis)}")
+        ax.set_ylabel("train step (ms)")
+        ax2.plot(xs, [p["peak_mib"] for p in pts], "s-", color="C1")
+        ax2.set_ylabel("compiled peak memory (MiB)")
+        for a in (ax, ax2):
+            a.set_xlabel(labels.get(axis, axis))
+            a.set_ylim(bottom=0)
+            a.grid(alpha=0.3)
+        fig.suptitle(f"Quick ViT (DINO RD) train step: scaling with {labels.get(axis, axis)} "
+                     f"({len(pts)} points, {'GPU' if _on_gpu(res) else 'CPU'})", fontsize=9)
+        fig.text(0.995, 0.005, f"ffjax bench · commit {str(res.get('commit', '?'))[:7]}", ha="right", va="bottom",
+                 fontsize=7, color="0.35")
         fig.tight_layout()
         path = Path(out) / f"scaling_{axis}.png"
         fig.savefig(path, dpi=110)

@@ -2,10 +2,9 @@
 
     python -m experiments.replot docs/results/ablation-quick [more folders ...]
 
-For Tables I-III (`experiments.ablation`), stability (`experiments.stability`) loss-sweep
-(`experiments.sweep_loss`) and speed-accuracy (`experiments.pareto`) folders; the numbers
-are read back unchanged, only the text and plots are written again (the commit the numbers came from stays in
-results.json and on every figure).
+For the folders of `experiments.ablation` (Tables I-III), `.stability`, `.sweep_loss`, `.pareto` and `.bench`
+(figures only). The numbers are read back unchanged, only the text and plots are written again (the commit the
+numbers came from stays in results.json and on every figure).
 """
 
 from __future__ import annotations
@@ -45,7 +44,13 @@ def replot(folder) -> str:
 
         pareto.write_all({**results, "markdown": pareto.markdown(results)}, folder)
         return "pareto"
-    raise ValueError(f"{folder}: results.json is not from experiments.ablation, .stability, .sweep_loss or .pareto")
+    if "models" in results and "scaling" in results:
+        from experiments import bench_report
+
+        bench_report.plots(results, folder)  # the figures only: report.md is tied to the bench version that ran
+        return "bench"
+    raise ValueError(f"{folder}: results.json is not from experiments.ablation, .stability, .sweep_loss, .pareto or "
+                     ".bench")
 
 
 def main(argv=None) -> int:
