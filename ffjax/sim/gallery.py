@@ -27,9 +27,17 @@ def _nobg(s):
 def _grid(samples, titles, path, cols=5, dmax=None):
     """Three rows per band of `cols` samples: frame, background-subtracted (x3), depth."""
     bands = (len(samples) + cols - 1) // cols
-    fig, axes = plt.subplots(3 * bands, cols, figsize=(2.6 * cols, 2.2 * 3 * bands), squeeze=False)
+    # constrained layout: tight_layout-free figures left a quarter of the page as blank margin
+    fig, axes = plt.subplots(3 * bands, cols, figsize=(2.4 * cols + 1.2, 2.0 * 3 * bands), squeeze=False,
+                             layout="constrained")
     for ax in axes.ravel():
-        ax.axis("off")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        for spine in ax.spines.values():
+            spine.set_visible(False)
+    for b in range(bands):  # which row is which
+        for r, label in enumerate(("camera frame", "minus background (x3)", "depth (mm)")):
+            axes[3 * b + r, 0].set_ylabel(label, fontsize=7)
     dmax = dmax or max(float(s.depth.max()) for s in samples) or 1.0
     for i, (s, t) in enumerate(zip(samples, titles)):
         b, c = divmod(i, cols)
@@ -40,7 +48,7 @@ def _grid(samples, titles, path, cols=5, dmax=None):
         axes[3 * b + 1, c].imshow(_nobg(s))
         im = axes[3 * b + 2, c].imshow(s.depth, cmap="viridis", vmin=-0.1 * dmax, vmax=dmax)
         axes[3 * b + 2, c].set_title(f"depth max {s.depth.max():.2f} mm", fontsize=6)
-    fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.3, label="depth (mm)")
+    fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.25, label="depth (mm)")
     fig.savefig(path, dpi=80)
     plt.close(fig)
     return path
