@@ -24,6 +24,15 @@ EXTRA = (
 )
 
 
+def _paper_name(method: str) -> str:
+    from ffjax import registry
+
+    try:
+        return registry.get(method).paper_name
+    except KeyError:
+        return method
+
+
 def _common():
     from experiments import common  # the experiment helpers (md tables, atomic writes)
 
@@ -301,7 +310,7 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
             )
         ax.plot(tr["t"], tr["true"], "k-", lw=1.2, label="true push force")
         ax.plot(tr["t"], tr["reference"], "C1-", lw=0.8, label="reference sensor (drifting)")
-        ax.plot(tr["t"], tr["estimate"], "C0.-", lw=0.8, ms=3, label=f"estimate ({tr['method']})")
+        ax.plot(tr["t"], tr["estimate"], "C0.-", lw=0.8, ms=3, label=f"estimate ({_paper_name(tr['method'])})")
         t_end, window = float(np.asarray(tr["t"])[-1]), float(res["pushing"]["duration_s"])
         if window < t_end:  # the sweep's longest push is simulated; Table IV reads its first `window` seconds
             ax.axvline(window, color="0.4", ls=":", lw=1, label=f"Table IV window ends ({window:g} s)")
@@ -317,13 +326,21 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
         made.append("push_force.png")
     push = res["pushing"]
     fig, ax = plt.subplots(figsize=(5.5, 3.5))
-    for m in push["sweep"]:
+    seen = {}
+    for k, m in enumerate(push["sweep"]):
         y = [100 * push["sweep"][m][str(T)]["mean"]["weight_error_rel"]["mean"] for T in push["durations"]]
-        ax.plot(push["durations"], y, "o-" if m != PERFECT else "k--", label=m)
-    ax.set(
-        xlabel="push duration [s]", ylabel="mean weight error [%]", title="weighing error vs push duration"
-    )
-    ax.legend(fontsize=7)
+        if m == PERFECT:
+            ax.plot(push["durations"], y, "k--", label="true force as the estimate (the method's own error)")
+            continue
+        key = tuple(round(v, 6) for v in y)  # equal curves (DINO_F R, DINO_F RD) get their own marker and a note
+        label = _paper_name(m) + (f" (= {_paper_name(seen[key])})" if key in seen else "")
+        seen.setdefault(key, m)
+        ax.plot(push["durations"], y, marker="osD^v"[k % 5], ls=("-", "--", ":", "-.")[k % 4],
+                mfc="none" if k % 2 else None, label=label)
+    ax.set(xlabel="push duration [s]", ylabel="mean weight error [%]",
+           title=f"Weighing error against push duration ({res.get('preset', '?')} models)")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)
+    _common().stamp(fig, res.get("preset", "?"), [0], res.get("commit", "?"))
     fig.tight_layout()
     fig.savefig(out / "push_duration.png", dpi=120)
     plt.close(fig)
