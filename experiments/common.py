@@ -102,6 +102,26 @@ def stamp(fig, preset: str, seeds, commit: str) -> None:
     fig.text(0.995, 0.005, text, ha="right", va="bottom", fontsize=7, color="0.35")
 
 
+def place_labels(ax, xs, ys, texts, fontsize: float = 7) -> None:
+    """Annotate points without labels on top of each other: each label takes the first of a few offsets
+    (right, below, left, above ...) whose box misses the boxes placed before it. Call after the axes' scales
+    are set."""
+    ax.autoscale_view()
+    to_px = ax.transData.transform
+    char_w, line_h = 0.6 * fontsize, 1.3 * fontsize  # in points ~ pixels at the figures' dpi scale
+    placed = []
+    for x, y, text in sorted(zip(xs, ys, texts), key=lambda t: -t[1]):
+        px, py = to_px((x, y))
+        w = char_w * len(text)
+        for dx, dy in ((4, 3), (4, -line_h - 2), (-w - 4, 3), (-w - 4, -line_h - 2), (4, line_h + 4),
+                       (4, -2 * line_h - 4), (-w / 2, line_h + 6), (-w / 2, -2 * line_h - 6)):
+            box = (px + dx, py + dy, px + dx + w, py + dy + line_h)
+            if not any(b[0] < box[2] and box[0] < b[2] and b[1] < box[3] and box[1] < b[3] for b in placed):
+                break
+        placed.append(box)
+        ax.annotate(text, (x, y), xytext=(dx, dy), textcoords="offset pixels", fontsize=fontsize)
+
+
 def read_json(path):
     path = Path(path)
     return json.loads(path.read_text()) if path.is_file() else None

@@ -152,17 +152,13 @@ def plot(r: dict, path: Path) -> Path:
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     done = [v for v in r["shapes"].values() if v.get("n")]
     largest = max((v["area_mm2"] for v in done if v["kind"] == "indenter"), default=None)
-    for s, v in r["shapes"].items():
+    for v in r["shapes"].values():
         if not v.get("n"):
             continue
         style = {"indenter": ("o", "tab:blue"), "object": ("s", "tab:red")}[v["kind"]]
         for ax, y in zip(axes, ("sens_train", "edge_share")):
             val = v[y] * (100 if y == "edge_share" else 1)
             ax.scatter(v["area_mm2"], val, marker=style[0], color=style[1])
-            # the right panel's upper cluster (nearly all the change at the outline) would be a pile of labels
-            if y == "sens_train" or v["edge_share"] < 0.95:
-                ax.annotate(s.replace("_", " "), (v["area_mm2"], val), fontsize=7, xytext=(3, 3),
-                            textcoords="offset points")
     for ax, label in zip(axes, ("image change per N at the training size (8-bit RMS)",
                                 "share of the change within 1 mm of the outline (%)")):
         ax.set_xscale("log")
@@ -174,6 +170,12 @@ def plot(r: dict, path: Path) -> Path:
         ax.set_xlabel("contact area at Fz >= half range (mm^2, median)")
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
+    for ax, y in zip(axes, ("sens_train", "edge_share")):
+        # the right panel's upper cluster (nearly all the change at the outline) would be a pile of labels
+        shown = [(s, v) for s, v in r["shapes"].items() if v.get("n") and (y == "sens_train" or v["edge_share"] < 0.95)]
+        common.place_labels(ax, [v["area_mm2"] for _, v in shown],
+                            [v[y] * (100 if y == "edge_share" else 1) for _, v in shown],
+                            [s.replace("_", " ") for s, _ in shown])
     axes[0].scatter([], [], marker="o", color="tab:blue", label="training indenters")
     axes[0].scatter([], [], marker="s", color="tab:red", label="unseen objects (Table I)")
     axes[0].legend(fontsize=8)

@@ -234,24 +234,25 @@ def plot(r: dict, path: Path) -> Path:
     ax.set_xlabel("contact area, reference (mm^2)")
     ax.set_ylabel("approach: simulator / reference")
     ax.set_title(f"stiffness (Fz {last[0]['fz']:g} N)", fontsize=10)
-    ax = axes[1][1]
+    ncol = len(axes[1])
+    for a in axes[1][1:]:
+        a.remove()
+    # the sensitivity panel spans the rest of the row: 26 named points do not fit in one column
+    ax = fig.add_subplot(2, ncol, (ncol + 2, 2 * ncol))
     sim_s = [w["sens_train_sim"] for w in last]
     ref_s = [w["sens_train_ref"] for w in last]
     ax.scatter(ref_s, sim_s, c=cols)
     lim = max(max(sim_s), max(ref_s)) * 1.1
     ax.plot([0, lim], [0, lim], color="0.4", lw=1)
-    for s, x, y in zip(names, ref_s, sim_s):
-        ax.annotate(s.replace("_", " "), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    common.place_labels(ax, ref_s, sim_s, [s.replace("_", " ") for s in names], fontsize=7)
     ax.set_xlabel("image change per N, elastic layer (8-bit RMS)")
     ax.set_ylabel("image change per N, simulator")
     ax.set_title("what a network reads Fz from (training size)", fontsize=10)
     for k, c in colours.items():
-        axes[1][1].scatter([], [], color=c, label=k)
-    axes[1][1].legend(fontsize=8)
-    for a in (axes[1][0], axes[1][1]):
+        ax.scatter([], [], color=c, label=k)
+    ax.legend(fontsize=8)
+    for a in (axes[1][0], ax):
         a.grid(True, alpha=0.3)
-    for a in axes[1][2:]:
-        a.axis("off")
     fig.suptitle(f"Simulator against the exact incompressible elastic layer ({r['sensor']}, {r['preset']})")
     return save_png(fig, path)
 

@@ -2,9 +2,9 @@
 
     python -m experiments.replot docs/results/ablation-quick [more folders ...]
 
-For the folders of `experiments.ablation` (Tables I-III), `.stability`, `.sweep_loss`, `.pareto` and `.bench`
-(figures only). The numbers are read back unchanged, only the text and plots are written again (the commit the
-numbers came from stays in results.json and on every figure).
+For the folders of `experiments.ablation` (Tables I-III), `.stability`, `.sweep_loss`, `.pareto`, and the
+figures of `.bench`, `.contact_probe` and `.layer_check`. The numbers are read back unchanged, only the text
+and plots are written again (the commit the numbers came from stays in results.json and on every figure).
 """
 
 from __future__ import annotations
@@ -49,8 +49,14 @@ def replot(folder) -> str:
 
         bench_report.plots(results, folder)  # the figures only: report.md is tied to the bench version that ran
         return "bench"
-    raise ValueError(f"{folder}: results.json is not from experiments.ablation, .stability, .sweep_loss, .pareto or "
-                     ".bench")
+    for kind, keys in (("contact_probe", ("edge_mm", "per_shape")), ("layer_check", ("margin_thicknesses",))):
+        if all(k in results for k in keys):
+            import importlib
+
+            importlib.import_module(f"experiments.{kind}").plot(results, folder / f"{kind}.png")  # figure only
+            return kind
+    raise ValueError(f"{folder}: results.json is not from experiments.ablation, .stability, .sweep_loss, .pareto, "
+                     ".bench, .contact_probe or .layer_check")
 
 
 def main(argv=None) -> int:
