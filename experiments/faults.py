@@ -362,6 +362,7 @@ def report_md(res: dict) -> str:
 
 
 def _parts_md(res: dict) -> str:
+    """The kill/resume parts' table and totals."""
     t = res["totals"]
     rows = [[name, p["kills_injected"], p["kills_landed"], p["survived"], p["corrupt_found"],
              "yes" if p["data_lost"] else "no", p["comparison"]] for name, p in res["parts"].items()]

@@ -6,13 +6,15 @@ Every case runs the real command lines (`python -m ffjax.live ...`) in subproces
 root, then measures what a user would see: the exit code, the stderr lines, the key line, and the files
 before and after. `run_cases` builds the shared fixtures once under OUT/cases/_shared (a small simulated
 smoke dataset, a 2-epoch run of it, a bundle of that run, an 11-frame video), runs each case in its own
-OUT/cases/caseN/ and returns one row per command: what was done, what was expected, what was measured and
+folder (OUT/cases/case1, ..., case7_inputs, case7_models, ...; every command's stdout and stderr kept there) and
+returns one row per command: what was done, what was expected, what was measured and
 the named checks whose conjunction is the row's "pass". `cases_md` renders the rows as a Markdown table.
 Case 5 needs a 40 MiB tmpfs (`mount`, root only); where mounting fails it is reported as skipped.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import pickle
 import re
@@ -59,6 +61,7 @@ class _Payload:
     """Unpickling this runs `echo pwned`: what a crafted .pth does to an unrestricted torch.load."""
 
     def __reduce__(self):
+        """Pickled as a call of os.system."""
         return (os.system, ("echo pwned",))
 
 
@@ -168,6 +171,7 @@ def _row(case: str, what: str, expected: str, res: dict, checks: dict, key: str 
 
 
 def _skipped(case: str, what: str, expected: str, reason: str) -> dict:
+    """A row for a case this machine cannot run: neither passed nor failed."""
     return {"case": case, "what": what, "expected": expected, "skipped": reason, "checks": {}, "pass": None}
 
 
@@ -178,8 +182,6 @@ def _steps(folder: Path) -> list[int]:
 
 def _log_rows(run: Path) -> list[tuple]:
     """(kind, step) of every train_log.jsonl row."""
-    import json
-
     text = (run / "train_log.jsonl").read_text() if (run / "train_log.jsonl").is_file() else ""
     return [(r["kind"], r["step"]) for r in map(json.loads, text.splitlines())]
 
@@ -252,6 +254,7 @@ def _flip_middle(path: Path, n: int = 4) -> None:
 
 
 def _largest(folder: Path) -> Path:
+    """The largest file directly in `folder`."""
     return max((p for p in folder.iterdir() if p.is_file()), key=lambda p: p.stat().st_size)
 
 
@@ -283,8 +286,9 @@ def case1(d: Path, sh: Shared) -> list[dict]:
         r = _cli(d, tag, sh.env, *live, *src)
         after = csv.read_bytes() if csv.is_file() else b""
         checks = {**_error_checks(r), "forces.csv byte-identical": after == before,
-                  "nothing moved aside": sorted(os.listdir(log)) == names}
-        rows.append(_row(tag, f"then `live {what} --out LOG` (same LOG)", "exit != 0, LOG/forces.csv unchanged", r,
+                  "nothing moved aside": (sorted(os.listdir(log)) if log.is_dir() else []) == names}
+        rows.append(_row(tag, f"then `live {what} --out LOG` (same LOG)", "exit 1/2, one error line, "
+                         "LOG/forces.csv unchanged", r,
                          checks, note=f"forces.csv {len(before)} B before, {len(after)} B after"))
     return rows
 
@@ -362,6 +366,7 @@ def case5(d: Path, sh: Shared) -> list[dict]:
 
 
 def _full_disk(d: Path, mnt: Path, sh: Shared) -> list[dict]:
+    """Case 5 inside the mounted tmpfs `mnt`: train, fill the disk after the first checkpoint, then resume."""
     run, sets = mnt / "run", ("train.epochs=4", "train.ckpt_every=2")
     p = _start(d, "train", sh.env, *_train(sh.data, run, *sets))
     try:
@@ -493,6 +498,7 @@ def case7_models(d: Path, sh: Shared) -> list[dict]:
 
 
 def _halve(path: Path) -> None:
+    """Cut a file to its first half."""
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
 
 
@@ -562,8 +568,11 @@ CASES = [("1", case1), ("2", case2), ("3", case3), ("4", case4), ("5", case5), (
 
 
 def run_cases(out: Path, env: dict, progress: bool) -> list[dict]:
-    """Build the shared fixtures, run every case in OUT/cases/caseN/, return the rows (sorted by case)."""
+    """Build the shared fixtures, run every case in OUT/cases/<its function>/, return the rows (sorted by case)."""
     root = out / "cases"
+    if progress:
+        print("faults cases: building the shared fixtures (a dataset, a 2-epoch run, a bundle, a video)",
+              file=sys.stderr, flush=True)
     sh = build_shared(root / "_shared", env)
     rows = []
     for name, fn in tqdm(CASES, desc="faults cases", disable=not progress):
@@ -592,6 +601,7 @@ def _shorten(row: dict, out: Path) -> dict:
 
 
 def _clear(folder: Path) -> None:
+    """Remove `folder` and everything in it, if it exists."""
     if folder.exists():
         shutil.rmtree(folder)
 
@@ -603,6 +613,7 @@ def _code(text: str, limit: int = 240) -> str:
 
 
 def _measured(row: dict) -> str:
+    """The measured cell: rc, stderr line count, key line, note and every check with its outcome."""
     if row.get("skipped"):
         return f"skipped: {row['skipped']}"
     checks = ", ".join(f"{k} {'✓' if v else '✗'}" for k, v in row["checks"].items())
