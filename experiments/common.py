@@ -48,6 +48,13 @@ def config_from_args(ap, args) -> dict:
     """The validated config of --preset and --set; a bad key or value is a usage error (exit 2). Says which
     preset runs and what it costs (stderr), before any work."""
     cfg = configs.from_cli(ap, args.preset, args.set)
+    if getattr(args, "out", None) is not None:  # an impossible --out fails now, named, not after the first stage
+        from ffjax.train.checkpoint import CheckpointWriteError, check_writable
+
+        try:
+            check_writable(args.out)
+        except CheckpointWriteError as e:
+            ap.error(f"--out: {e}")
     cost = getattr(args, "_costs", {}).get(args.preset)
     print(f"{prog() or 'experiment'}: preset {args.preset}" + (f" (measured: {cost})" if cost else "")
           + ("" if args.preset == "smoke" else "; --preset smoke for a quick check"), file=sys.stderr)

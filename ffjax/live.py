@@ -154,9 +154,16 @@ def camera_frames(index: int, **kw) -> CameraFrames:
 
 
 def video_frames(path):
+    """(t, RGB frame, index) of a video file; a missing or unreadable file is refused here, not at the first frame."""
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"--video {path}: no such file")
     cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
-        raise RuntimeError(f"cannot open video {path}")
+        raise RuntimeError(f"cannot open video {path}: not a video cv2 can decode")
+    return _read_video(cap)
+
+
+def _read_video(cap):
     fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
     try:
         i = 0

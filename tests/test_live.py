@@ -63,8 +63,11 @@ def test_a_failed_start_keeps_the_previous_recording_and_a_new_one_moves_it_asid
     args = ["--checkpoint", str(run_dir), "--out", str(out), "--headless", "--print-every", "0"]
     assert live.main([*args, "--video", str(video)]) == 0
     first = (out / "forces.csv").read_bytes()
-    with pytest.raises(RuntimeError, match="cannot open video"):  # a typo: nothing predicted, nothing overwritten
+    with pytest.raises(FileNotFoundError, match="no such file"):  # a typo: nothing predicted, nothing overwritten
         live.main([*args, "--video", str(tmp_path / "typo.mp4")])
+    (tmp_path / "notes.mp4").write_text("not a video")
+    with pytest.raises(RuntimeError, match="cannot open video"):
+        live.main([*args, "--video", str(tmp_path / "notes.mp4")])
     assert (out / "forces.csv").read_bytes() == first
     assert live.main([*args, "--video", str(video), "--max-frames", "2"]) == 0
     assert (out / "forces.1.csv").read_bytes() == first and (out / "annotated.1.mp4").exists()

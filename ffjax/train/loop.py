@@ -270,6 +270,10 @@ def _train(
         raise ValueError(f"train.nonfinite must be one of {NONFINITE_MODES}, got {nonfinite!r}")
     input_size, bs = int(cfg["data"]["input_size"]), int(tc["batch_size"])
     train_src, val_src = open_sources(data)
+    steps_per_epoch = len(train_src) // bs
+    if steps_per_epoch == 0:  # refused before anything is written into the run folder
+        raise ValueError(f"train split has {len(train_src)} records, fewer than one batch of {bs}: "
+                         "lower train.batch_size")
     ckpt = Checkpointer(run_dir)
     has_ckpt = ckpt.latest_step() is not None
     if has_ckpt and not resume:
@@ -284,7 +288,7 @@ def _train(
         # compared after the output affine is filled in, as model.json records it
         changed = _diff(info["cfg"], json.loads(json.dumps(with_output_affine(cfg, stats))))
         if changed:  # allowed (e.g. more epochs), but the result then differs from an uninterrupted run
-            warnings.warn(f"resuming {run_dir} with a changed config: {', '.join(changed)}", stacklevel=2)
+            warnings.warn(f"resuming {run_dir} with a changed config: {', '.join(changed)}", stacklevel=3)
     else:
         stats = fdata.Stats.compute(train_src, cfg["data"])
     cfg = with_output_affine(cfg, stats)
@@ -292,9 +296,6 @@ def _train(
     write_model_json(run_dir, cfg, spec, stats, input_size, frame_size=first["image"].shape[:2],
                      background_stats=fdata.stats.background_stats(first["background"]))
 
-    steps_per_epoch = len(train_src) // bs
-    if steps_per_epoch == 0:
-        raise ValueError(f"train split has {len(train_src)} records, fewer than one batch of {bs}")
     total = int(tc["epochs"]) * steps_per_epoch
     ckpt_every = max(int(tc.get("ckpt_every", steps_per_epoch)), 1)
     val_every = max(int(tc.get("val_every", 1)), 1)  # epochs; configs written before the key: every epoch
@@ -444,7 +445,7 @@ def _train(
     }
     if meta["nonfinite_steps"]:
         warnings.warn(f"{len(meta['nonfinite_steps'])} non-finite step(s) skipped (train.nonfinite='skip'): "
-                      f"steps {meta['nonfinite_steps'][:20]}", stacklevel=2)
+                      f"steps {meta['nonfinite_steps'][:20]}", stacklevel=3)
     summary["nonfinite_skipped"] = list(meta["nonfinite_steps"])
     atomic_write_text(run_dir / SUMMARY_NAME, json.dumps(summary, indent=2))
     summary["state"] = state

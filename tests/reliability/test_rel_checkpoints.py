@@ -73,9 +73,10 @@ def test_resume_with_another_method_or_architecture_is_refused(run, tmp_path):
         train.train(configs.get("smoke", {"train.epochs": 2}), "dino_r", run["data"], dst, resume=True,
                     progress=False)
     wider = configs.get("smoke", {"train.epochs": 2, "model.vit.dim": 48})
-    with pytest.warns(UserWarning, match="changed config"):
+    with pytest.warns(UserWarning, match="changed config") as warned:
         with pytest.raises(CheckpointError, match=rf"cannot resume from {dst / 'checkpoints'}.*another model"):
             train.train(wider, METHOD, run["data"], dst, resume=True, progress=False)
+    assert {w.filename for w in warned if "changed config" in str(w.message)} == {__file__}  # points at the caller
 
 
 @pytest.mark.parametrize("text", ["{not json", json.dumps({"hello": 1}), json.dumps([1, 2])])

@@ -15,6 +15,7 @@ ROOT = Path(__file__).resolve().parents[2]
     (["ffjax.export", "--checkpoint", "{tmp}/nope", "--out", "{tmp}/ex"], "no such checkpoint folder"),
     (["experiments.ablation", "--preset", "smoke", "--methods", "bogus", "--out", "{tmp}/abl"],
      "unknown method 'bogus'"),
+    (["experiments.ablation", "--preset", "smoke", "--out", "/dev/null/abl"], "--out: output folder /dev/null/abl"),
 ])
 def test_bad_arguments_are_one_line_errors(tmp_path, cmd, fragment):
     env = {**os.environ, "FFJAX_DEBUG": ""}
@@ -22,5 +23,5 @@ def test_bad_arguments_are_one_line_errors(tmp_path, cmd, fragment):
                        text=True, cwd=ROOT, env=env, timeout=300)
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     assert p.returncode == 2, p.stderr
-    assert any(ln.startswith("error: ") and fragment in ln for ln in lines), p.stderr
+    assert any((ln.startswith("error: ") or ": error: " in ln) and fragment in ln for ln in lines), p.stderr
     assert "Traceback" not in p.stderr

@@ -157,3 +157,11 @@ def test_a_damaged_bundle_names_its_file(reference, tmp_path):
     (b / "model.json").write_text(json.dumps(info))
     with pytest.raises(ckpt_lib.CheckpointError, match="does not hold the weights of the dino_rd model"):
         inference.load(b)
+
+
+def test_a_batch_larger_than_the_dataset_is_refused_before_the_run_folder_is_filled(data, tmp_path):
+    run = tmp_path / "run"
+    with pytest.raises(ValueError, match="fewer than one batch of 64: lower train.batch_size"):
+        train.train(configs.get("smoke", {"train.batch_size": 64}), METHOD, data, run, progress=False)
+    assert sorted(p.name for p in run.iterdir() if not p.name.startswith(".")) == []  # no model.json, no checkpoints
+    train.train(_cfg(), METHOD, data, run, progress=False, max_steps=1)  # the same folder then trains normally
