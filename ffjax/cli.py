@@ -13,6 +13,7 @@ import sys
 import threading
 
 USAGE, RUNTIME = 2, 1
+_REPORTED = threading.Event()  # set once run() has printed its error: later orbax records only echo that failure
 
 
 def _usage_errors() -> tuple[type, ...]:
@@ -35,6 +36,8 @@ class _OneLineBackgroundErrors(logging.Filter):
     (the CheckpointWriteError that run() prints). Keep orbax's lines to one line each; drop asyncio's repeats."""
 
     def filter(self, record: logging.LogRecord) -> bool:
+        if _REPORTED.is_set() and "orbax" in record.pathname:  # threads still failing after the error line
+            return False
         if record.name == "asyncio":
             return not _from_orbax(record.getMessage() + repr(record.exc_info and record.exc_info[1]))
         if record.exc_info and "orbax" in record.pathname:
@@ -70,6 +73,7 @@ def run(main, argv=None) -> int:
     (FFJAX_DEBUG=1: re-raised, and background tracebacks are kept)."""
     if not os.environ.get("FFJAX_DEBUG"):
         _quiet_background_faults()
+    _REPORTED.clear()
     try:
         rc = main(argv)
         return rc if isinstance(rc, int) else 0
@@ -84,5 +88,6 @@ def run(main, argv=None) -> int:
         if code is None:
             raise
         msg = e.args[0] if isinstance(e, KeyError) and e.args else e
-        print(f"error: {msg}", file=sys.stderr)
+        _REPORTED.set()  # the error line stays the last thing printed
+        print(f"error: {msg}", file=sys.stderr, flush=True)
         return code

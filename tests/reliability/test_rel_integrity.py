@@ -128,6 +128,23 @@ def test_a_full_disk_mid_run_is_one_clear_line(data, tmp_path, monkeypatch, caps
     assert _steps(tmp_path)[-1] == 6
 
 
+def test_orbax_records_after_the_error_line_are_dropped(capsys):
+    """orbax's writer threads can go on failing after run() has printed the error (a race seen on a real full
+    tmpfs): their records are echoes and must not push the error line up."""
+    flt = cli._OneLineBackgroundErrors()
+    late = logging.LogRecord("absl", logging.ERROR, "/x/orbax/checkpoint/_src/a.py", 1, "write failed", (), None)
+    other = logging.LogRecord("absl", logging.ERROR, "/x/mylib.py", 1, "unrelated", (), None)
+
+    def fail(argv):
+        assert flt.filter(late) and flt.filter(other)  # before the error: kept
+        raise OSError(28, "could not save: the disk is full")
+
+    assert cli.run(fail) == 1 and capsys.readouterr().err.strip().startswith("error: ")
+    assert not flt.filter(late) and flt.filter(other)
+    cli.run(lambda argv: 0)  # the next run starts afresh
+    assert flt.filter(late)
+
+
 def test_a_damaged_bundle_names_its_file(reference, tmp_path):
     ckpt = inference.read_checkpoint(reference["run_dir"])
 
