@@ -36,7 +36,7 @@ class _OneLineBackgroundErrors(logging.Filter):
     (the CheckpointWriteError that run() prints). Keep orbax's lines to one line each; drop asyncio's repeats."""
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if _REPORTED.is_set() and "orbax" in record.pathname:  # threads still failing after the error line
+        if _REPORTED.is_set():  # orbax's threads still failing after the error line: echoes of that failure
             return False
         if record.name == "asyncio":
             return not _from_orbax(record.getMessage() + repr(record.exc_info and record.exc_info[1]))
