@@ -13,7 +13,7 @@ import sys
 import threading
 
 USAGE, RUNTIME = 2, 1
-_REPORTED = threading.Event()  # set once run() has printed its error: later orbax records only echo that failure
+_REPORTED = threading.Event()  # set once main() has failed: later orbax records only echo that failure
 
 
 def _usage_errors() -> tuple[type, ...]:
@@ -36,7 +36,7 @@ class _OneLineBackgroundErrors(logging.Filter):
     (the CheckpointWriteError that run() prints). Keep orbax's lines to one line each; drop asyncio's repeats."""
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if _REPORTED.is_set():  # orbax's threads still failing after the error line: echoes of that failure
+        if _REPORTED.is_set():  # main() has failed: orbax threads still failing only echo it
             return False
         if record.name == "asyncio":
             return not _from_orbax(record.getMessage() + repr(record.exc_info and record.exc_info[1]))
@@ -83,11 +83,11 @@ def run(main, argv=None) -> int:
     except Exception as e:  # noqa: BLE001 - sorted below; anything unexpected still shows its traceback
         if os.environ.get("FFJAX_DEBUG"):
             raise
+        _REPORTED.set()  # from here on, background records only echo this failure: the error line stays last
         code = USAGE if isinstance(e, _usage_errors()) else RUNTIME if isinstance(e, (OSError, RuntimeError)) \
             else None
         if code is None:
             raise
         msg = e.args[0] if isinstance(e, KeyError) and e.args else e
-        _REPORTED.set()  # the error line stays the last thing printed
         print(f"error: {msg}", file=sys.stderr, flush=True)
         return code
