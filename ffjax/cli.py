@@ -68,6 +68,14 @@ def _quiet_background_faults() -> None:
     sys.unraisablehook, threading.excepthook = quiet_unraisable, quiet_thread
 
 
+def fail(message, code: int = RUNTIME) -> int:
+    """Print `error: message` as the run's last line and return `code`: for tools that catch their own errors.
+    Later records of orbax's background threads (echoes of the same failure) are dropped."""
+    _REPORTED.set()
+    print(f"error: {message}", file=sys.stderr, flush=True)
+    return code
+
+
 def run(main, argv=None) -> int:
     """main(argv)'s exit code (0 when it returns no int); known faults become one `error:` line on stderr
     (FFJAX_DEBUG=1: re-raised, and background tracebacks are kept)."""
@@ -88,6 +96,4 @@ def run(main, argv=None) -> int:
             else None
         if code is None:
             raise
-        msg = e.args[0] if isinstance(e, KeyError) and e.args else e
-        print(f"error: {msg}", file=sys.stderr, flush=True)
-        return code
+        return fail(e.args[0] if isinstance(e, KeyError) and e.args else e, code)

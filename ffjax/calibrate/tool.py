@@ -26,14 +26,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 from pathlib import Path
 
 import jax
 import numpy as np
 
+from ffjax import cli, inference, metrics
 from ffjax import data as fdata
-from ffjax import inference, metrics
 from ffjax.calibrate import core
 from ffjax.data.sources import write_rgb
 from ffjax.runlock import LOCK_NAME, folder_lock
@@ -187,6 +186,5 @@ def main(argv=None) -> int:
         calibrate(a.checkpoint, a.data, a.out, a.layers, a.steps, a.lr, a.holdout, a.seed, a.background,
                   a.batch_size, a.which, a.overwrite)
     except (ValueError, FileExistsError, FileNotFoundError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+        return cli.fail(e, cli.USAGE)
     return 0

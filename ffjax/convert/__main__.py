@@ -11,6 +11,8 @@ import sys
 import jax
 import numpy as np
 
+from ffjax import cli
+
 from . import from_dinov2, from_release, from_torchvision, mapping, reader, store
 
 
@@ -37,8 +39,7 @@ def main(argv=None) -> int:
     try:
         return _run(a)
     except (mapping.ConversionError, reader.UnsafePickleError, ValueError, FileNotFoundError) as e:
-        print(f"error: {e}", file=sys.stderr)  # every mapping problem is in the message: no traceback needed
-        return 2
+        return cli.fail(e, cli.USAGE)  # every mapping problem is in the message: no traceback needed
 
 
 def _run(a: argparse.Namespace) -> int:
@@ -72,6 +73,4 @@ def _run(a: argparse.Namespace) -> int:
 
 
 if __name__ == "__main__":
-    from ffjax import cli
-
     sys.exit(cli.run(main))

@@ -59,7 +59,7 @@ def describe(val: dict | None) -> str:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    from ffjax import registry, train
+    from ffjax import cli, registry, train
     from ffjax.train.checkpoint import CheckpointError, CheckpointWriteError
 
     cfg = args.cfg
@@ -68,14 +68,12 @@ def main(argv=None) -> int:
     ckpts = out / "checkpoints"
     has_ckpt = ckpts.is_dir() and any(p.name.isdigit() for p in ckpts.iterdir())
     if args.resume == "yes" and not has_ckpt:
-        print(f"error: --resume: nothing to resume in {out} (no checkpoint in {ckpts}); drop --resume to start "
-              "a new run there (or --resume=auto to start when there is none)", file=sys.stderr)
-        return 2
+        return cli.fail(f"--resume: nothing to resume in {out} (no checkpoint in {ckpts}); drop --resume to start "
+                        "a new run there (or --resume=auto to start when there is none)", cli.USAGE)
     resume = bool(args.resume)  # train() starts from step 0 when a killed run had not saved yet
     data_dir = args.data
     if args.val and not (data_dir and str(data_dir).endswith(".csv")):
-        print("error: --val goes with --data TRAIN.csv", file=sys.stderr)
-        return 2
+        return cli.fail("--val goes with --data TRAIN.csv", cli.USAGE)
     if data_dir and str(data_dir).endswith(".csv"):
         from ffjax import data
 
@@ -83,8 +81,7 @@ def main(argv=None) -> int:
             data_dir = {k: data.open_split(v, validate=True, skip_bad_rows=args.skip_bad_rows) if v else None
                         for k, v in (("train", data_dir), ("val", args.val))}
         except data.DataError as e:
-            print(f"error: {e}", file=sys.stderr)
-            return 2
+            return cli.fail(e, cli.USAGE)
         if not args.val:
             print("note: no --val CSV: no validation, the best checkpoint is the last one", file=sys.stderr)
     elif data_dir is None:
@@ -95,16 +92,14 @@ def main(argv=None) -> int:
         dataset.generate(cfg, data_dir)
     backbone, variables = None, None
     if args.init and args.pretrained:
-        print("error: give --init or --pretrained, not both", file=sys.stderr)
-        return 2
+        return cli.fail("give --init or --pretrained, not both", cli.USAGE)
     if args.init:
         from ffjax.train import init_weights
 
         try:
             cfg, backbone, variables = init_weights.apply(cfg, spec, args.init)
         except (ValueError, FileNotFoundError) as e:
-            print(f"error: {e}", file=sys.stderr)
-            return 2
+            return cli.fail(e, cli.USAGE)
     elif args.pretrained:
         from ffjax.train.pretrain import load_backbone
 
@@ -132,11 +127,9 @@ def main(argv=None) -> int:
             progress=not args.quiet,
         )
     except (train.NonFiniteLossError, CheckpointWriteError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
+        return cli.fail(e, cli.RUNTIME)
     except (FileExistsError, CheckpointError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+        return cli.fail(e, cli.USAGE)
     wall = time.perf_counter() - t0
     print(
         f"run: {summary['run_dir']}  ({summary['steps']}/{summary['total_steps']} steps, "

@@ -142,6 +142,8 @@ def test_orbax_records_after_the_error_line_are_dropped(capsys):
     assert not flt.filter(late)
     cli.run(lambda argv: 0)  # the next run starts afresh
     assert flt.filter(late)
+    assert cli.run(lambda argv: cli.fail("caught by the tool itself", cli.RUNTIME)) == 1  # e.g. ffjax.train's main
+    assert not flt.filter(late) and capsys.readouterr().err == "error: caught by the tool itself\n"
 
 
 def test_a_damaged_bundle_names_its_file(reference, tmp_path):
