@@ -3,8 +3,8 @@
     python -m experiments.replot docs/results/ablation-quick [more folders ...]
 
 For the folders of `experiments.ablation` (Tables I-III), `.stability`, `.sweep_loss`, `.pareto`, and the
-figures of `.bench`, `.contact_probe` and `.layer_check`. The numbers are read back unchanged, only the text
-and plots are written again (the commit the numbers came from stays in results.json and on every figure).
+figures of `.bench`, `.contact_probe`, `.layer_check` and `.downstream`. The numbers are read back unchanged,
+only the text and plots are written again (the commit the numbers came from stays in results.json and on every figure).
 """
 
 from __future__ import annotations
@@ -49,6 +49,11 @@ def replot(folder) -> str:
 
         bench_report.plots(results, folder)  # the figures only: report.md is tied to the bench version that ran
         return "bench"
+    if "pushing" in results and "grasping" in results:
+        from ffjax.tasks import report
+
+        report.plots(results, folder, results.get("push_trace"))  # figures only: the tables come with the run
+        return "downstream"
     for kind, keys in (("contact_probe", ("edge_mm", "per_shape")), ("layer_check", ("margin_thicknesses",))):
         if all(k in results for k in keys):
             import importlib
@@ -56,7 +61,7 @@ def replot(folder) -> str:
             importlib.import_module(f"experiments.{kind}").plot(results, folder / f"{kind}.png")  # figure only
             return kind
     raise ValueError(f"{folder}: results.json is not from experiments.ablation, .stability, .sweep_loss, .pareto, "
-                     ".bench, .contact_probe or .layer_check")
+                     ".bench, .contact_probe, .layer_check or .downstream")
 
 
 def main(argv=None) -> int:

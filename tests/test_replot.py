@@ -20,6 +20,13 @@ def test_replot_reproduces_the_committed_tables(tmp_path):
         assert (tmp_path / name).stat().st_size > 10_000, name
 
 
+def test_replot_redraws_the_downstream_figures_with_the_push_trace(tmp_path):
+    shutil.copy(RESULTS / "downstream-quick" / "results.json", tmp_path / "results.json")
+    assert replot.replot(tmp_path) == "downstream"
+    for name in ("push_force.png", "push_duration.png", "grasp_steps.png"):
+        assert (tmp_path / name).stat().st_size > 10_000, name
+
+
 def test_replot_refuses_other_folders(tmp_path):
     with pytest.raises(FileNotFoundError, match="results.json"):
         replot.replot(tmp_path)

@@ -43,6 +43,16 @@ def _v(ms) -> float:
     return ms["mean"] if isinstance(ms, dict) else float(ms)
 
 
+def stamp(fig, res: dict) -> None:
+    """The figure's provenance in its corner (preset, the checkpoints' training seeds, commit): see
+    experiments.common.stamp."""
+    import re
+
+    seeds = sorted({int(m.group(1)) for runs in res.get("checkpoints", {}).values() for r in runs
+                    if (m := re.search(r"seed(\d+)$", str(r)))})
+    _common().stamp(fig, res.get("preset", "?"), seeds or ["?"], res.get("commit", "?"))
+
+
 def table4_md(res: dict) -> str:
     c = _common()
     push = res["pushing"]
@@ -299,7 +309,7 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
     made = []
     if push_trace is not None:
         tr = push_trace
-        fig, ax = plt.subplots(figsize=(7, 3.5))
+        fig, ax = plt.subplots(figsize=(9, 3.6), layout="constrained")
         const = np.asarray(tr["phase"]) == 2
         if const.any():
             ax.axvspan(
@@ -319,13 +329,13 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
             ylabel="Fz = push force [N]",
             title=f"one push of the {tr['object']} weight ({t_end + float(np.diff(tr['t'][:2])[0]):.0f} s simulated)",
         )
-        ax.legend(fontsize=7)
-        fig.tight_layout()
+        fig.legend(fontsize=7, loc="outside right upper")
+        stamp(fig, res)
         fig.savefig(out / "push_force.png", dpi=120)
         plt.close(fig)
         made.append("push_force.png")
     push = res["pushing"]
-    fig, ax = plt.subplots(figsize=(5.5, 3.5))
+    fig, ax = plt.subplots(figsize=(9, 3.8), layout="constrained")
     seen = {}
     for k, m in enumerate(push["sweep"]):
         y = [100 * push["sweep"][m][str(T)]["mean"]["weight_error_rel"]["mean"] for T in push["durations"]]
@@ -339,15 +349,14 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
                 mfc="none" if k % 2 else None, label=label)
     ax.set(xlabel="push duration [s]", ylabel="mean weight error [%]",
            title=f"Weighing error against push duration ({res.get('preset', '?')} models)")
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)
-    _common().stamp(fig, res.get("preset", "?"), [0], res.get("commit", "?"))
-    fig.tight_layout()
+    fig.legend(fontsize=7, loc="outside right upper")
+    stamp(fig, res)
     fig.savefig(out / "push_duration.png", dpi=120)
     plt.close(fig)
     made.append("push_duration.png")
     tr = res["grasping"].get("cup_trace")
     if tr:
-        fig, (a1, a2) = plt.subplots(2, 1, figsize=(6, 5), sharex=True)
+        fig, (a1, a2) = plt.subplots(2, 1, figsize=(8.5, 5), sharex=True, layout="constrained")
         a1.plot(tr["steps"], tr["true"], "k.-", label="true force")
         names = [f"{n}-gel{g}" for n, g in res["gripper"]["sensors"]]
         a1.plot(tr["steps"], tr["est_a"], "C0.-", label=f"estimate, jaw A ({names[0]})")
@@ -356,10 +365,10 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
         a1.axvline(tr["stop_true"], color="k", ls=":", lw=0.8)
         a1.axvline(tr["stop_est"], color="C0", ls=":", lw=0.8)
         a1.set(ylabel="Fz [N]", title="closing on the cup rim (dotted: stop, true / estimated control)")
-        a1.legend(fontsize=7)
+        fig.legend(fontsize=7, loc="outside right upper")
         a2.plot(tr["steps"], tr["deformation_pct"], "k.-")
         a2.set(xlabel="gripper step", ylabel="deformation [%]")
-        fig.tight_layout()
+        stamp(fig, res)
         fig.savefig(out / "grasp_steps.png", dpi=120)
         plt.close(fig)
         made.append("grasp_steps.png")
@@ -369,6 +378,9 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
 def write_all(res: dict, out, push_trace: dict | None = None) -> None:
     c = _common()
     out = Path(out)
+    if push_trace is not None:  # kept, so `python -m experiments.replot` can redraw push_force.png
+        res["push_trace"] = {k: np.asarray(v).tolist() if isinstance(v, (list, np.ndarray)) else v
+                             for k, v in push_trace.items()}
     c.write_json(out / "results.json", res)
     c.write_text(out / "table4.md", table4_md(res))
     c.write_text(out / "grasping.md", grasping_md(res))
