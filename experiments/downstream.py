@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -66,10 +65,6 @@ def main(argv=None) -> dict:
     src.add_argument("--ablation", default=None, help="ablation results folder (its results.json lists runs)")
     args = ap.parse_args(argv)
     cfg = common.config_from_args(ap, args)
-    from ffjax.inference import BackgroundWarning
-
-    # the gripper's second jaw is another sensor unit (mini-2) by design: say so once, not once per trial
-    warnings.filterwarnings("once", category=BackgroundWarning)
     out = Path(args.out or common.ROOT / "results" / f"downstream-{args.preset}").absolute()
     t0 = time.perf_counter()
     checkpoints, source = find_checkpoints(cfg, args, out)

@@ -131,3 +131,23 @@ def test_downstream_cli_smoke(tmp_path):
         assert perfect[obj.name]["weight_error"]["mean"] < 0.05 * obj.mass_kg
     assert "Weight(1)" in (out / "table4.md").read_text() and "(2.05)" in (out / "table4.md").read_text()
     assert res["grasping"]["summary"]["cup"]["perfect"]["1.74"]["reached"] == 1.0
+
+
+def test_model_sensor_says_a_background_warning_once_per_message():
+    """The gripper's two jaws are two sensor units; the one unlike the training sensor used to warn at every
+    call (719 warnings in one quick downstream run)."""
+    import warnings
+
+    from _smoke_run import smoke_run
+
+    from ffjax.inference import BackgroundWarning
+    from ffjax.tasks.sensing import ModelSensor
+
+    sensor = ModelSensor(smoke_run())
+    h, w = sensor.frame_size
+    odd = np.full((h, w, 3), 250, np.uint8)  # a saturated background: not the training sensor's
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        for _ in range(3):
+            assert sensor(odd[None], odd).shape == (1, 3)
+    assert len([x for x in said if issubclass(x.category, BackgroundWarning)]) == 1

@@ -21,6 +21,7 @@ class ModelSensor:
         self.method = self.predictor.method
         self.out_of_range = 0
         self.frames_seen = 0
+        self._said: set[str] = set()
 
     @property
     def frame_size(self) -> tuple[int, int]:
@@ -30,7 +31,13 @@ class ModelSensor:
         from ffjax.inference import ForceRangeWarning
 
         frames = np.asarray(frames)
-        self.predictor.set_background(background)
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            self.predictor.set_background(background)
+        for w in said:  # a scene alternates sensors (the gripper's two jaws): each warning once, not per call
+            if str(w.message) not in self._said:
+                self._said.add(str(w.message))
+                warnings.warn(w.message, stacklevel=2)
         out = np.empty((len(frames), 3), np.float32)
         big = self.BUCKETS[-1]
         for i in range(0, len(frames), big):
