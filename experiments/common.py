@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import json
 import os
@@ -55,14 +56,17 @@ def config_from_args(ap, args) -> dict:
             check_writable(args.out)
         except CheckpointWriteError as e:
             ap.error(f"--out: {e}")
+    git_commit()  # the code this run loaded, recorded before any work
     cost = getattr(args, "_costs", {}).get(args.preset)
     print(f"{prog() or 'experiment'}: preset {args.preset}" + (f" (measured: {cost})" if cost else "")
           + ("" if args.preset == "smoke" else "; --preset smoke for a quick check"), file=sys.stderr)
     return cfg
 
 
+@functools.cache
 def git_commit() -> str:
-    """HEAD's hash, with "-dirty" when tracked files differ from it (numbers then are not from a commit)."""
+    """HEAD's hash, with "-dirty" when tracked files differ from it (numbers then are not from a commit). Read
+    once per process, at the run's start (config_from_args): a commit made while a run goes on is not its code."""
     try:
         head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
                               check=True).stdout.strip()

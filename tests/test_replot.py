@@ -33,3 +33,15 @@ def test_replot_refuses_other_folders(tmp_path):
     (tmp_path / "results.json").write_text('{"cells": []}')
     with pytest.raises(ValueError, match="not from experiments.ablation"):
         replot.replot(tmp_path)
+
+
+def test_the_commit_is_read_once_at_the_start_of_a_run(monkeypatch):
+    """A result records the code it ran: a commit made during a long run must not be stamped on its figures."""
+    from experiments import common
+
+    common.git_commit.cache_clear()
+    monkeypatch.setattr(common.subprocess, "run", lambda *a, **k: (_ for _ in ()).throw(OSError("no git")))
+    assert common.git_commit() == "unknown"
+    monkeypatch.undo()
+    assert common.git_commit() == "unknown"  # HEAD moved on, the run's commit did not
+    common.git_commit.cache_clear()
