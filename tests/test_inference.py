@@ -72,8 +72,8 @@ def test_refuses_wrong_size_channels_dtype_and_missing_background(run_dir, batch
         p.predict(batch["image"].astype(np.float32))
     loose = inference.load(run_dir, strict_size=False)
     big = np.zeros((48, 64, 3), np.uint8)
-    with pytest.warns(UserWarning, match="48x64"):
-        loose.set_background(big)
+    with pytest.warns(UserWarning, match="48x64"), pytest.warns(inference.BackgroundWarning, match="dark"):
+        loose.set_background(big)  # a zero frame is also a dark background: both are said
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert loose.predict(big).shape == (1, 3)
