@@ -90,6 +90,12 @@ def readout(run, data: Path) -> dict:
     return res
 
 
+def run_label(run) -> str:
+    """'ablation-quick-e30 dino_rd' for results/ablation-quick-e30/runs/dino_rd/seed0."""
+    parts = Path(run).parts
+    return f"{parts[-4]} {parts[-2]}" if len(parts) >= 4 and parts[-3] == "runs" else str(run)
+
+
 def markdown(res: dict) -> str:
     sig, lines = res["signal"], []
     lines += [f"# Where the force is in the image, and how much of it is read (preset {res['preset']})", "",
@@ -101,7 +107,7 @@ def markdown(res: dict) -> str:
     head = "| shape | kind | contact at 5 N (mm², share of pad) | energy per N Fz | per N shear |"
     sep = "|---|---|---|---|---|"
     for r in runs:
-        head += f" {Path(r).parts[-2]}: slope Fx / Fy / Fz, Fz offset (N) |"
+        head += f" {run_label(r)}: slope Fx / Fy / Fz, Fz offset (N) |"
         sep += "---|"
     lines += [head, sep]
     for name, v in sorted(sig.items(), key=lambda kv: (kv[1]["kind"], -kv[1]["energy_shear_per_n"])):
@@ -116,7 +122,8 @@ def markdown(res: dict) -> str:
 
 
 def plot(res: dict, path: Path) -> None:
-    """Shear signal per newton against the shear a model reads (its slope), one point per shape."""
+    """The contact's share of the pad against the shear a model reads (its slope), one point per shape: a face
+    that covers most of the view hides the contact's edge, where shear shows."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -127,7 +134,7 @@ def plot(res: dict, path: Path) -> None:
                              layout="constrained")
     for ax, run in zip(axes[0], runs or [None]):
         names = [n for n in res["signal"] if run is None or n in res["readout"][run]]
-        x = [res["signal"][n]["energy_shear_per_n"] for n in names]
+        x = [100 * res["signal"][n]["pad_share"] for n in names]
         y = [np.mean(res["readout"][run][n]["slope"][:2]) if run else 0.0 for n in names]
         kinds = [res["signal"][n]["kind"] for n in names]
         for kind, marker in (("indenter", "o"), ("object", "s")):
@@ -136,8 +143,9 @@ def plot(res: dict, path: Path) -> None:
                        label="training indenter (val)" if kind == "indenter" else "Table I object")
         common.place_labels(ax, x, y, [n.replace("_", " ") for n in names])
         ax.axhline(1.0, color="0.5", ls=":", lw=1)
-        ax.set(xscale="log", xlabel="image energy of a 1 N shear at Fz 5 N", ylabel="shear read (slope, mean Fx Fy)",
-               title=Path(run).parts[-2].replace("_", " ") if run else "signal only")
+        ax.set(xlabel=f"contact area at Fz {FZ:g} N, centred (% of the pad)", ylabel="shear read (slope, mean Fx Fy)",
+               title=run_label(run) if run else "signal only")
+    fig.get_layout_engine().set(rect=(0, 0.04, 1, 0.96))  # the bottom strip for the provenance stamp
     handles, labels = axes[0][0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside right upper", fontsize=8)
     common.stamp(fig, res["preset"], res.get("seeds", []), res["commit"])
