@@ -22,3 +22,10 @@ def write_tiny_split(path, n, seed):
     image = np.clip(bg[None].astype(np.float32) + 80 * depth[..., None], 0, 255).astype(np.uint8)
     np.savez(path / "shard_00000.npz", image=image, depth=depth, force=force, shape=np.array(["blob"] * n))
     write_rgb(path / "background.png", bg)
+
+
+def write_tiny_dataset(root, n_train: int = 32, n_val: int = 8, seed: int = 0):
+    """root/train and root/val tiny splits (seeds `seed`, `seed + 1`); returns root."""
+    write_tiny_split(root / "train", n_train, seed)
+    write_tiny_split(root / "val", n_val, seed + 1)
+    return root

@@ -6,7 +6,7 @@ import json
 import jax
 import numpy as np
 import pytest
-from _tiny_data import write_tiny_split
+from _tiny_data import write_tiny_dataset
 
 import configs
 from ffjax import train
@@ -16,10 +16,7 @@ METHOD = "dino_rd"  # the same smoke model and optimizer as test_train: one comp
 
 @pytest.fixture(scope="module")
 def tiny_data(tmp_path_factory):
-    root = tmp_path_factory.mktemp("tiny_data")
-    write_tiny_split(root / "train", 32, 0)
-    write_tiny_split(root / "val", 12, 1)
-    return root
+    return write_tiny_dataset(tmp_path_factory.mktemp("tiny_data"), 32, 12)
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
-from _tiny_data import write_tiny_split
+from _tiny_data import write_tiny_dataset
 
 import configs
 from ffjax import train
@@ -27,10 +27,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
-    root = tmp_path_factory.mktemp("rel_data")
-    write_tiny_split(root / "train", 32, 0)
-    write_tiny_split(root / "val", 8, 1)
-    return root
+    return write_tiny_dataset(tmp_path_factory.mktemp("rel_data"), 32, 8)
 
 
 def _cfg(**kw):

@@ -8,7 +8,7 @@ import shutil
 
 import numpy as np
 import pytest
-from _tiny_data import write_tiny_split
+from _tiny_data import write_tiny_dataset
 
 import configs
 from ffjax import cli, inference, train
@@ -23,10 +23,7 @@ def _cfg():
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
-    root = tmp_path_factory.mktemp("integ_data")
-    write_tiny_split(root / "train", 32, 0)
-    write_tiny_split(root / "val", 8, 1)
-    return root
+    return write_tiny_dataset(tmp_path_factory.mktemp("integ_data"), 32, 8)
 
 
 @pytest.fixture(scope="module")
