@@ -4,7 +4,8 @@
 
 For the folders of `experiments.ablation` (Tables I-III), `.stability`, `.sweep_loss`, `.pareto`, and the
 figures of `.bench`, `.contact_probe`, `.layer_check` and `.downstream`. The numbers are read back unchanged,
-only the text and plots are written again (the commit the numbers came from stays in results.json and on every figure).
+only the text (Tables I-III's verdict sentences included) and plots are written again (the commit the numbers
+came from stays in results.json and on every figure).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ def replot(folder) -> str:
     if "table1" in results:
         from experiments import tables, training_report
 
+        results["findings"] = tables.findings(results)  # the verdicts too: written by the code of the run's day
         tables.write_all(results, folder)
         if results.get("training"):
             training_report.write(results["training"], folder, results["preset"], results.get("seeds", []),

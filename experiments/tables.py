@@ -272,12 +272,16 @@ def plot_all(results: dict, out: Path) -> list[Path]:
         ax.set_ylabel("normalized L1 error (%)")
 
     seeds_txt = f"mean ± std over {len(results['seeds'])} seeds" if multi_seed else "1 seed, no error bars"
+
+    def ticks_txt(paper, what):  # name the paper's ticks only where some are drawn (not for e.g. a scratch run)
+        return f"; black ticks: {what}" if any(m in paper for m in methods) else ""
+
     t1 = results["table1"]
     objs = [o for o in P.OBJECTS if o in t1[methods[0]]] + ["mean"]
     fig, ax = plt.subplots(figsize=(13, 4.2))
     bars(ax, objs, lambda m, g: t1[m].get(g), {m: v for m, v in P.TABLE1.items()})
     ax.set_xticklabels([o.replace("_", " ") for o in objs], rotation=30, ha="right")
-    ax.set_title(f"Table I: unseen objects ({seeds_txt}; black ticks: the paper, real sensor)")
+    ax.set_title(f"Table I: unseen objects ({seeds_txt}{ticks_txt(P.TABLE1, 'the paper, real sensor')})")
     finish(fig, ax, out / "table1.png")
 
     t2 = results["table2"]
@@ -285,7 +289,7 @@ def plot_all(results: dict, out: Path) -> list[Path]:
     fig, ax = plt.subplots(figsize=(13, 4.2))
     bars(ax, keys, lambda m, g: t2[m].get(g), {m: v for m, v in P.TABLE2.items()})
     ax.set_xticklabels(keys, rotation=30, ha="right")
-    ax.set_title(f"Table II: trained on mini-1/gel-1 ({seeds_txt}; black ticks: the paper)")
+    ax.set_title(f"Table II: trained on mini-1/gel-1 ({seeds_txt}{ticks_txt(P.TABLE2, 'the paper')})")
     finish(fig, ax, out / "table2.png")
 
     t3 = results["table3"]
@@ -293,11 +297,14 @@ def plot_all(results: dict, out: Path) -> list[Path]:
     fig, axes = plt.subplots(1, len(targets), figsize=(13, 3.8), sharey=False)
     for ax, t in zip(np.atleast_1d(axes), targets):
         x = np.arange(len(methods))
-        ax.bar(x - 0.2, [_m(t3[m][t]["before"]) for m in methods], 0.4, label="before calibration", color="0.75")
-        ax.bar(x + 0.2, [_m(t3[m][t]["after"]) for m in methods], 0.4, label="after calibration", color="tab:blue")
+        for dx, when, color in ((-0.2, "before", "0.75"), (0.2, "after", "tab:blue")):
+            cells = [t3[m][t][when] for m in methods]
+            ax.bar(x + dx, [_m(c) for c in cells], 0.4, label=f"{when} calibration", color=color,
+                   yerr=[c["std"] for c in cells] if multi_seed else None, capsize=2)
         paper_x = [i for i, m in enumerate(methods) if m in P.TABLE3]
-        ax.scatter([i + 0.2 for i in paper_x], [P.TABLE3[methods[i]][targets.index(t)] for i in paper_x],
-                   marker="_", s=120, color="k", zorder=3, label="paper (after)")
+        if paper_x:  # no legend entry for ticks that are not drawn
+            ax.scatter([i + 0.2 for i in paper_x], [P.TABLE3[methods[i]][targets.index(t)] for i in paper_x],
+                       marker="_", s=120, color="k", zorder=3, label="paper (after)")
         ax.set_xticks(x)
         ax.set_xticklabels([_name(m) for m in methods], rotation=30, ha="right", fontsize=7)
         ax.set_title(f"{t} ({t3[methods[0]][t]['layers']})")

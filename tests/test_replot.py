@@ -1,5 +1,6 @@
 """experiments.replot re-renders a committed result folder from its results.json without changing a number."""
 
+import json
 import shutil
 from pathlib import Path
 
@@ -11,13 +12,25 @@ RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
 
 
 def test_replot_reproduces_the_committed_tables(tmp_path):
-    src = RESULTS / "ablation-quick-seeds"
+    src = RESULTS / "ablation-full"
     shutil.copy(src / "results.json", tmp_path / "results.json")
     assert replot.replot(tmp_path) == "ablation"
     for name in ("table1.md", "table2.md", "table3.md", "training.md"):
         assert (tmp_path / name).read_text() == (src / name).read_text(), name
     for name in ("table1.png", "table2.png", "table3.png", "training_curves.png"):
         assert (tmp_path / name).stat().st_size > 10_000, name
+
+
+def test_replot_rewrites_verdicts_written_by_older_code(tmp_path):
+    """A folder's findings were worded by the code of its run's day; the two frozen variants, equal to 0.1 points
+    over 3 seeds, must read as a tie, not 'does NOT reproduce'."""
+    results = json.loads((RESULTS / "ablation-full" / "results.json").read_text())
+    results["findings"] = {k: f"stale {k}" for k in ("table1", "table2", "table3")}
+    (tmp_path / "results.json").write_text(json.dumps(results))
+    replot.replot(tmp_path)
+    table2 = (tmp_path / "table2.md").read_text()
+    assert "stale" not in table2
+    assert "The frozen backbone (DINO_F R) is worst: tie, not resolved" in table2
 
 
 def test_replot_redraws_the_downstream_figures_with_the_push_trace(tmp_path):
