@@ -16,7 +16,7 @@ from ffjax.convert import from_dinov2, from_release, mapping, reader
 from ffjax.models import vit
 
 FIX = Path(__file__).parent / "fixtures"
-TOL = 1e-5  # float32; measured max abs differences are <= 2e-6 (see /tmp/readme/convert.md)
+TOL = 1e-5  # float32; measured max abs differences are <= 2e-6 (see "Parity" in docs/models.md)
 
 
 def _ref(name):

@@ -35,6 +35,19 @@ def test_trains_on_release_csv(release_csvs, tmp_path, capsys):
     assert info["frame_size"] == list(_smoke_run.frame_size())
 
 
+@pytest.mark.parametrize("entry", ["ffjax.train.__main__:parse_args", "ffjax.train.pretrain:main"])
+def test_help_names_the_default_preset_and_its_cost(entry, capsys):
+    """Nobody starts a run of minutes without --help saying so."""
+    import importlib
+
+    module, fn = entry.split(":")
+    with pytest.raises(SystemExit):
+        getattr(importlib.import_module(module), fn)(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "(default: quick). Measured" in text or "(default: quick). One method" in text
+    assert " min" in text
+
+
 def test_val_without_csv_is_refused(tmp_path, capsys):
     assert cli.main(["--preset", "smoke", "--val", "x.csv", "--out", str(tmp_path)]) == 2
     assert "--val goes with --data TRAIN.csv" in capsys.readouterr().err

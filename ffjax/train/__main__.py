@@ -20,8 +20,12 @@ def parse_args(argv=None):
     from ffjax import registry
 
     ap = argparse.ArgumentParser(prog="python -m ffjax.train", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--preset", default="quick", choices=configs.PRESETS)
-    ap.add_argument("--method", default="dino_rd", choices=registry.names())
+    # measured costs (2-core CPU: the quick ablation at 42ea49b, the full one at 942ebfd), so nobody starts a long run unknowingly
+    ap.add_argument("--preset", default="quick", choices=configs.PRESETS,
+                    help="size of data, model and training (default: quick). One method on a 2-core CPU: smoke: "
+                    "seconds, numbers meaningless; quick: 1-5 min (DINO RD 193 s, ResNet RD 272 s), plus 4-6 "
+                    "min to simulate data/quick on first use; full: 1.5-5 min per seed")
+    ap.add_argument("--method", default="dino_rd", choices=registry.names(), help="registry name (default: dino_rd)")
     ap.add_argument("--data", help="dataset root holding train/ and val/, or a release-layout CSV "
                     "(default: simulate into data/<preset>)")
     ap.add_argument("--val", help="validation CSV (release layout) when --data is a CSV")
