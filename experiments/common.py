@@ -106,8 +106,9 @@ def write_text(path, text: str) -> None:
 
 def stamp(fig, preset: str, seeds, commit: str) -> None:
     """Print what a figure was made from in its corner (preset, seeds, commit), and say so when the preset's
-    numbers mean nothing: a PNG copied into a notebook keeps its provenance."""
-    text = f"ffjax · preset {preset} · seeds {list(seeds)} · commit {str(commit)[:7]}"
+    numbers mean nothing: a PNG copied into a notebook keeps its provenance. No seeds (a simulator-only check
+    trains nothing): none shown."""
+    text = f"ffjax · preset {preset}" + (f" · seeds {list(seeds)}" if seeds else "") + f" · commit {str(commit)[:7]}"
     if preset == "smoke":
         text += " · SMOKE PRESET: plumbing check, numbers meaningless"
     fig.text(0.995, 0.005, text, ha="right", va="bottom", fontsize=7, color="0.35")

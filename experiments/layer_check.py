@@ -220,7 +220,7 @@ def plot(r: dict, path: Path) -> Path:
         ax.set_xlabel("x across the pad centre (mm)")
         ax.set_ylabel("gel surface height (mm)")
         ax.grid(True, alpha=0.3)
-    axes[0][0].legend(fontsize=8)
+    axes[0][len(shown) - 1].legend(fontsize=8, loc="best")  # the wrench panel has a free corner in every preset
     for ax in axes[0][len(shown):]:
         ax.axis("off")
     names = list(r["shapes"])
@@ -254,6 +254,7 @@ def plot(r: dict, path: Path) -> Path:
     for a in (axes[1][0], ax):
         a.grid(True, alpha=0.3)
     fig.suptitle(f"Simulator against the exact incompressible elastic layer ({r['sensor']}, {r['preset']})")
+    common.stamp(fig, r["preset"], [], r["commit"])  # simulator only: no seeds
     return save_png(fig, path)
 
 
