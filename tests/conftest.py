@@ -1,0 +1,34 @@
+"""Suite-wide guard: the tests never write into the user's own data/, runs/ or results/ folders."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+# Tests run the smoke preset: a command that forgot its --data/--out would land in one of these defaults
+# (data/<preset>, runs/<preset>-<method>, results/<experiment>-<preset>; under the repo or the working directory).
+DEFAULTS = ("data/smoke", "runs/smoke-*", "results/*-smoke")
+
+
+def _snapshot() -> dict[str, int]:
+    """Every path under those defaults with its modification time."""
+    seen = {}
+    for base in {ROOT, Path.cwd().resolve()}:
+        for top in (p for pattern in DEFAULTS for p in base.glob(pattern)):
+            for p in (top, *top.rglob("*")):
+                try:
+                    seen[str(p)] = p.stat().st_mtime_ns
+                except FileNotFoundError:  # removed while we looked: a change the comparison still sees
+                    pass
+    return seen
+
+
+@pytest.fixture(scope="session", autouse=True)
+def users_folders_untouched():
+    before = _snapshot()
+    yield
+    after = _snapshot()
+    changed = sorted(p for p in before.keys() | after.keys() if before.get(p) != after.get(p))
+    assert not changed, f"the tests wrote into the user's folders (pass --data/--out under tmp_path): {changed[:5]}"
