@@ -54,6 +54,10 @@ class UnsafePickleError(pickle.UnpicklingError):
     """A checkpoint's pickle references a global outside the allow-list."""
 
 
+class _ViewError(ValueError):
+    """A tensor's size, stride or offset does not fit its storage or file (state_dict adds file and name)."""
+
+
 class _StorageType:
     def __init__(self, name: str, dtype):
         self.name, self.dtype = name, np.dtype(dtype)
@@ -65,6 +69,9 @@ class _Storage:
     def __init__(self, archive: _Archive, key: str, dtype: np.dtype):
         self.archive, self.key, self.dtype = archive, key, dtype
         self._array = None
+
+    def file_size(self) -> int:
+        return self.archive.path.stat().st_size
 
     def array(self) -> np.ndarray:
         if self._array is None:
@@ -81,6 +88,7 @@ class TensorRef:
         self.dtype = np.dtype(dtype) if dtype is not None else storage.dtype
 
     def numpy(self) -> np.ndarray:
+        self._check_size()
         flat = self.storage.array()
         if self.dtype != flat.dtype:  # a v3 rebuild over an untyped (byte) storage
             flat = flat.view(self.dtype)
@@ -89,7 +97,7 @@ class TensorRef:
         # as_strided does not bounds-check: a crafted file must not make it read past the storage
         last = self.offset + sum((n - 1) * s for n, s in zip(self.shape, self.stride) if n > 0)
         if min(self.stride, default=0) < 0 or self.offset < 0 or (0 not in self.shape and last >= flat.size):
-            raise ValueError(f"tensor {self.shape} stride {self.stride} offset {self.offset} exceeds its storage")
+            raise _ViewError(f"tensor {self.shape} stride {self.stride} offset {self.offset} exceeds its storage")
         if 0 in self.shape:
             return np.zeros(self.shape, self.dtype)
         itemsize = flat.dtype.itemsize
@@ -97,6 +105,14 @@ class TensorRef:
             flat[self.offset :], shape=self.shape, strides=tuple(s * itemsize for s in self.stride)
         )
         return np.array(view)  # a contiguous copy; strided views of shared storages must not alias
+
+    def _check_size(self) -> None:
+        """Refuse, before allocating, a tensor larger than its whole file: stride-0 views over a tiny storage
+        (a 500-byte file declaring 10^9 elements) would otherwise be copied out to gigabytes."""
+        nbytes, on_disk = int(np.prod(self.shape, dtype=np.int64)) * self.dtype.itemsize, self.storage.file_size()
+        if nbytes > on_disk:
+            raise _ViewError(f"tensor {self.shape} {self.dtype} declares {nbytes:,} bytes, more than the whole file "
+                             f"({on_disk:,} bytes); corrupt or crafted, refusing to allocate it")
 
     def __repr__(self):
         return f"TensorRef(shape={self.shape}, dtype={self.dtype})"
@@ -259,7 +275,7 @@ def load(path) -> object:
     """Load a weight file: `.safetensors` -> dict of arrays; torch files -> the unpickled object."""
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(path)
+        raise FileNotFoundError(f"{path}: no such file")
     if path.suffix == ".safetensors":
         from safetensors.numpy import load_file
 
@@ -306,7 +322,10 @@ def state_dict(obj, path="<checkpoint>") -> dict[str, np.ndarray]:
     for name, value in flat.items():
         while name.startswith(_PREFIXES):
             name = name.split(".", 1)[1]
-        out[name] = value.numpy() if isinstance(value, TensorRef) else np.asarray(value)
+        try:
+            out[name] = value.numpy() if isinstance(value, TensorRef) else np.asarray(value)
+        except _ViewError as e:  # the view's checks know neither the file nor the tensor's name
+            raise ValueError(f"{path}: {name}: {e}") from e
     return out
 
 

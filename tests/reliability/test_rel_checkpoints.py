@@ -5,6 +5,7 @@ names the path and what is wrong."""
 import json
 import pickle
 import shutil
+import struct
 import zipfile
 
 import numpy as np
@@ -150,6 +151,22 @@ def test_torch_storage_larger_than_its_file_is_refused_before_inflating(tmp_path
     assert path.stat().st_size < 1 << 20
     with pytest.raises(ValueError, match=r"bomb\.pth.*data/0 declares 33,554,432 bytes, more than the whole file"):
         reader.read_state_dict(path)
+
+
+def test_torch_tensor_larger_than_its_file_is_refused_before_allocating(tmp_path):
+    """A 4-element storage viewed with stride 0 as 16M elements: 64 MiB out of a file of a few hundred bytes (the
+    same at 10^9 elements took 4 GB before)."""
+    n = 1 << 24
+    pkl = _ONE_TENSOR_PKL.replace(b"K\x04\x85K\x01\x85", b"J" + struct.pack("<i", n) + b"\x85K\x00\x85")
+    path = tmp_path / "broadcast.pth"
+    _torch_zip(path, pkl, {"0": np.ones(4, np.float32).tobytes()})
+    with pytest.raises(ValueError, match=rf"broadcast\.pth: w: tensor \({n},\) float32 declares {4 * n:,} bytes, "
+                                         "more than the whole file"):
+        reader.read_state_dict(path)
+    fits = tmp_path / "fits.pth"  # the same view over 4 elements reads
+    _torch_zip(fits, _ONE_TENSOR_PKL.replace(b"K\x01\x85", b"K\x00\x85"),
+               {"0": np.arange(4, dtype=np.float32).tobytes()})
+    np.testing.assert_array_equal(reader.read_state_dict(fits)["w"], [0, 0, 0, 0])
 
 
 def test_torch_file_missing_a_storage_is_refused(tmp_path):
