@@ -3,9 +3,9 @@
     python -m experiments.replot docs/results/ablation-quick [more folders ...]
 
 For the folders of `experiments.ablation` (Tables I-III), `.stability`, `.sweep_loss`, `.pareto`, and the
-figures of `.bench`, `.contact_probe`, `.layer_check` and `.downstream`. The numbers are read back unchanged,
-only the text (Tables I-III's verdict sentences included) and plots are written again (the commit the numbers
-came from stays in results.json and on every figure).
+figures of `.bench`, `.contact_probe`, `.layer_check`, `.object_probe` and `.downstream`. The numbers are read
+back unchanged, only the text (Tables I-III's verdict sentences included) and plots are written again (the
+commit the numbers came from stays in results.json and on every figure).
 """
 
 from __future__ import annotations
@@ -56,14 +56,15 @@ def replot(folder) -> str:
 
         report.plots(results, folder, results.get("push_trace"))  # figures only: the tables come with the run
         return "downstream"
-    for kind, keys in (("contact_probe", ("edge_mm", "per_shape")), ("layer_check", ("margin_thicknesses",))):
+    for kind, keys in (("contact_probe", ("edge_mm", "per_shape")), ("layer_check", ("margin_thicknesses",)),
+                       ("object_probe", ("signal", "readout"))):
         if all(k in results for k in keys):
             import importlib
 
             importlib.import_module(f"experiments.{kind}").plot(results, folder / f"{kind}.png")  # figure only
             return kind
     raise ValueError(f"{folder}: results.json is not from experiments.ablation, .stability, .sweep_loss, .pareto, "
-                     ".bench, .contact_probe, .layer_check or .downstream")
+                     ".bench, .contact_probe, .layer_check, .object_probe or .downstream")
 
 
 def main(argv=None) -> int:

@@ -40,6 +40,14 @@ def test_replot_redraws_the_downstream_figures_with_the_push_trace(tmp_path):
         assert (tmp_path / name).stat().st_size > 10_000, name
 
 
+@pytest.mark.parametrize("folder, png", [("object_probe-quick", "object_probe.png"),
+                                         ("contact_probe-quick", "contact_probe.png")])
+def test_replot_redraws_the_probe_figures(tmp_path, folder, png):
+    shutil.copy(RESULTS / folder / "results.json", tmp_path / "results.json")
+    assert replot.replot(tmp_path) == folder.split("-")[0]
+    assert (tmp_path / png).stat().st_size > 10_000
+
+
 def test_replot_refuses_other_folders(tmp_path):
     with pytest.raises(FileNotFoundError, match="results.json"):
         replot.replot(tmp_path)
