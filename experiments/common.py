@@ -50,12 +50,9 @@ def config_from_args(ap, args) -> dict:
     preset runs and what it costs (stderr), before any work."""
     cfg = configs.from_cli(ap, args.preset, args.set)
     if getattr(args, "out", None) is not None:  # an impossible --out fails now, named, not after the first stage
-        from ffjax.train.checkpoint import CheckpointWriteError, check_writable
+        from ffjax import cli
 
-        try:
-            check_writable(args.out)
-        except CheckpointWriteError as e:
-            ap.error(f"--out: {e}")
+        cli.check_out(ap, args.out)
     git_commit()  # the code this run loaded, recorded before any work
     cost = getattr(args, "_costs", {}).get(args.preset)
     print(f"{prog() or 'experiment'}: preset {args.preset}" + (f" (measured: {cost})" if cost else "")

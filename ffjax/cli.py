@@ -68,6 +68,17 @@ def _quiet_background_faults() -> None:
     sys.unraisablehook, threading.excepthook = quiet_unraisable, quiet_thread
 
 
+def check_out(parser, folder, flag: str = "--out"):
+    """`folder` (absolute) once it is created and writable; otherwise a usage error naming `flag` (exit 2), before
+    any work: an output under a file or on a read-only disk fails in a second, not after the run."""
+    from ffjax.train.checkpoint import CheckpointWriteError, check_writable
+
+    try:
+        return check_writable(folder)
+    except CheckpointWriteError as e:
+        parser.error(f"{flag}: {e}")
+
+
 def fail(message, code: int = RUNTIME) -> int:
     """Print `error: message` as the run's last line and return `code`: for tools that catch their own errors.
     Later records of orbax's background threads (echoes of the same failure) are dropped."""

@@ -17,7 +17,8 @@ Running it needs only jax (no ffjax, flax or training code):
     info = json.load(open("force.jaxexport.json"))          # frame_size, channels ("RGB"), force range
     forces = np.asarray(fn.call(frames, background))        # (B, H, W, 3), (H, W, 3) uint8 RGB -> (B, 3) N
 
-(or `ffjax.export.load(path)(frames, background)`, which also checks shapes and flags out-of-range forces).
+(or `ffjax.export.load(path)(frames, background)`, which also checks shapes and flags out-of-range and NaN/inf
+forces like `inference.Predictor.predict`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 from pathlib import Path
 
 import cv2
@@ -92,10 +94,12 @@ def sidecar_path(path) -> Path:
 
 def save(pred: inference.Predictor, path, batch: int = 1, platforms=None) -> Path:
     """Write the serialized function to `path` and its description to `path`.json; returns `path`."""
+    from ffjax.train.checkpoint import atomic_write_bytes, atomic_write_text
+
     exp = export(pred, batch, platforms)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(exp.serialize())
+    atomic_write_bytes(path, exp.serialize())  # a kill or a full disk never leaves half an export
     info = {
         "format": FORMAT,
         "inputs": {"images": f"uint8 ({'B' if batch == 0 else batch}, H, W, 3) {inference.CHANNELS}",
@@ -110,19 +114,26 @@ def save(pred: inference.Predictor, path, batch: int = 1, platforms=None) -> Pat
         "force_max": pred.force_max.tolist(),
         "jax_version": jax.__version__,
     }
-    sidecar_path(path).write_text(json.dumps(info, indent=2) + "\n")
+    atomic_write_text(sidecar_path(path), json.dumps(info, indent=2) + "\n")
     return path
 
 
 class ExportedPredictor:
-    """A loaded export: call(images, background) -> forces (B, 3) numpy; last_out_of_range like Predictor."""
+    """A loaded export: call(images, background) -> forces (B, 3) numpy; last_out_of_range and last_nonfinite
+    like Predictor. A missing, truncated or foreign file (or sidecar) is an error naming it."""
 
     def __init__(self, path):
         self.path = Path(path)
-        self.exported = jax.export.deserialize(bytearray(self.path.read_bytes()))
+        if not self.path.is_file():
+            raise FileNotFoundError(f"{self.path}: no such export file (python -m ffjax.export --out FILE ...)")
+        try:
+            self.exported = jax.export.deserialize(bytearray(self.path.read_bytes()))
+        except Exception as e:  # noqa: BLE001 - flatbuffers/struct errors of a damaged file name neither it nor why
+            raise ValueError(f"{self.path} is not a readable jax export (truncated, corrupt or another file: "
+                             f"{type(e).__name__}); export it again") from e
         side = sidecar_path(self.path)
-        self.info = json.loads(side.read_text()) if side.is_file() else {}
-        self.last_out_of_range = np.zeros((0,), bool)
+        self.info = inference._read_json(side) or {}
+        self.last_out_of_range = self.last_nonfinite = np.zeros((0,), bool)
 
     def __call__(self, images, background) -> np.ndarray:
         images, background = np.asarray(images), np.asarray(background)
@@ -135,10 +146,16 @@ class ExportedPredictor:
         if images.dtype != np.uint8 or background.dtype != np.uint8:
             raise TypeError("images and background must be uint8 RGB")
         forces = np.asarray(self.exported.call(images, background), np.float32)
+        self.last_nonfinite = ~np.isfinite(forces).all(axis=1)
+        self.last_out_of_range = self.last_nonfinite.copy()
         if "force_min" in self.info:
             lo, hi = np.minimum(self.info["force_min"], 0), np.maximum(self.info["force_max"], 0)
             tol = 0.05 * (hi - lo)
-            self.last_out_of_range = np.any((forces < lo - tol) | (forces > hi + tol), axis=1)
+            self.last_out_of_range |= np.any((forces < lo - tol) | (forces > hi + tol), axis=1)
+        if self.last_nonfinite.any():
+            warnings.warn(f"non-finite (NaN/inf) forces from {self.path}: the exported weights or the input are "
+                          "corrupt; do not act on them (see last_nonfinite)", inference.NonFiniteWarning,
+                          stacklevel=2)
         return forces
 
 
@@ -158,6 +175,9 @@ def main(argv=None) -> int:
                    help="comma-separated lowering targets, e.g. cpu,cuda (default: this machine's)")
     p.add_argument("--frame-size", default=None, help="HxW of the sensor frames, if the checkpoint lacks it")
     a = p.parse_args(argv)
+    from ffjax import cli
+
+    cli.check_out(p, Path(a.out).absolute().parent)  # before loading and compiling
     fs = tuple(int(v) for v in a.frame_size.lower().split("x")) if a.frame_size else None
     pred = inference.load(a.checkpoint, a.which, frame_size=fs)
     plats = a.platforms.split(",") if a.platforms else None

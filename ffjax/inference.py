@@ -245,6 +245,11 @@ def _read_checkpoint(folder: Path, which: str, frame_size) -> Checkpoint:
     info = _read_json(folder / MODEL_JSON)
     if info is not None and (folder / VARIABLES).is_file():  # bundle
         return _read_bundle(folder, info, frame_size)
+    if info is not None and info.get("format") == BUNDLE_FORMAT:  # not a run: "no best checkpoint" would mislead
+        from ffjax.train.checkpoint import CheckpointError
+
+        raise CheckpointError(f"{folder / VARIABLES} is missing: {folder} is a bundle (its {MODEL_JSON} says so) "
+                              "without its weights; copy the whole folder again")
     if info is not None:  # training run
         from ffjax import train
 

@@ -65,3 +65,40 @@ def test_fixed_batch_export(setup, tmp_path):
     fn = export.load(path)
     assert json.loads((tmp_path / "f1.bin.json").read_text())["batch"] == 1
     np.testing.assert_allclose(fn(b["image"][0], b["background"]), pred.predict(b["image"][:1]), atol=TOL)
+
+
+def test_a_damaged_or_missing_export_names_its_file(setup, tmp_path):
+    """A truncated or foreign file used to fail inside flatbuffers/struct (`unpack_from requires a buffer of at least
+    144210 bytes`) without naming it."""
+    pred, _ = setup
+    good = export.save(pred, tmp_path / "f.jaxexport")
+    raw = good.read_bytes()
+    for name, content in (("cut", raw[:1000]), ("foreign", b"garbage\n")):
+        (tmp_path / name).write_bytes(content)
+        with pytest.raises(ValueError, match=rf"{tmp_path / name} is not a readable jax export"):
+            export.load(tmp_path / name)
+    with pytest.raises(FileNotFoundError, match=rf"{tmp_path / 'nope'}: no such export file"):
+        export.load(tmp_path / "nope")
+    export.sidecar_path(good).write_text('{"frame_size": [24')  # a sidecar cut short
+    with pytest.raises(ValueError, match=r"f\.jaxexport\.json is not valid JSON"):
+        export.load(good)
+
+
+def test_nonfinite_forces_from_an_export_are_flagged(setup, tmp_path):
+    """One NaN weight in the last layer: the export's forces are flagged like Predictor.predict's, with a warning."""
+    import dataclasses
+
+    import jax
+
+    pred, b = setup
+    variables = jax.tree.map(np.array, pred.checkpoint.variables)
+    leaves = jax.tree_util.tree_leaves(variables["params"]["regressor"])
+    [k for k in leaves if k.ndim == 2][-1][0, 0] = np.nan
+    bad = inference.Predictor(dataclasses.replace(pred.checkpoint, variables=variables))
+    fn = export.load(export.save(bad, tmp_path / "nan.jaxexport", batch=3))
+    with pytest.warns(inference.NonFiniteWarning, match="nan.jaxexport"):
+        forces = fn(b["image"], b["background"])
+    assert np.isnan(forces[:, 0]).all() and fn.last_nonfinite.all() and fn.last_out_of_range.all()
+    fn = export.load(export.save(pred, tmp_path / "ok.jaxexport", batch=3))
+    fn(b["image"], b["background"])
+    assert not fn.last_nonfinite.any()

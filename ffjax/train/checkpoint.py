@@ -82,6 +82,8 @@ def _fsync_dir(folder: Path) -> None:
 def check_writable(folder, need_bytes: int = 0) -> Path:
     """Fail fast, before any work, when `folder` cannot be created or written or has too little space."""
     folder = Path(folder).absolute()
+    if folder.exists() and not folder.is_dir():  # mkdir would say only "File exists"
+        raise CheckpointWriteError(errno.ENOTDIR, f"output folder {folder} is a file, not a folder")
     probe = folder / f".write_probe{os.getpid()}"
     try:
         folder.mkdir(parents=True, exist_ok=True)

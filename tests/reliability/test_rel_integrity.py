@@ -165,6 +165,10 @@ def test_a_damaged_bundle_names_its_file(reference, tmp_path):
         (b / "model.json").write_text(full[: len(full) // 2] if text is None else text)
         with pytest.raises(ckpt_lib.CheckpointError, match=rf"{b / 'model.json'}.*{why}"):
             inference.load(b)
+    b = bundle("no_weights")  # used to be read as a training run: "has no best checkpoint yet"
+    (b / "variables.msgpack").unlink()
+    with pytest.raises(ckpt_lib.CheckpointError, match=rf"{b / 'variables.msgpack'} is missing: .* is a bundle"):
+        inference.load(b)
     b = bundle("other_weights")  # an older bundle (no sha256) whose weights are another model's
     info = json.loads((b / "model.json").read_text())
     del info["variables_sha256"]
