@@ -60,6 +60,17 @@ def config_from_args(ap, args) -> dict:
     return cfg
 
 
+def ablation_folder(ap, given, preset: str) -> Path:
+    """The ablation results folder whose runs an experiment reuses: `given` (--ablation), which must exist (a typo
+    used to retrain everything silently), else results/ablation-<preset>."""
+    if given is None:
+        return ROOT / "results" / f"ablation-{preset}"
+    if not Path(given).is_dir():
+        ap.error(f"--ablation {given}: no such folder (an experiments.ablation --out folder; leave --ablation out "
+                 f"to use results/ablation-{preset})")
+    return Path(given)
+
+
 @functools.cache
 def git_commit() -> str:
     """HEAD's hash, with "-dirty" when tracked files differ from it (numbers then are not from a commit). Read

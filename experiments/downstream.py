@@ -14,6 +14,7 @@ Writes OUT/results.json, table4.md, grasping.md, CSVs and PNG plots
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from pathlib import Path
 
@@ -332,4 +333,6 @@ def _grasp_trace(trial, sensor, res: dict, true: dict, target: float) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

@@ -375,4 +375,6 @@ def _parts_md(res: dict) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

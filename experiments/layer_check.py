@@ -22,6 +22,7 @@ Writes OUT/results.json, layer_check.md and layer_check.png (cross-sections and 
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -269,4 +270,6 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

@@ -20,6 +20,7 @@ import copy
 import os
 import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -86,8 +87,7 @@ def main(argv=None) -> dict:
         ap.error(f"unknown sizes {unknown}; choose from {', '.join(SIZES)}")
     seeds = args.seeds or ablation.DEFAULT_SEEDS[args.preset]
     out = Path(args.out or common.ROOT / "results" / f"pareto-{args.preset}")
-    reuse = None if args.ablation == "none" else Path(args.ablation or common.ROOT / "results" /
-                                                      f"ablation-{args.preset}")
+    reuse = None if args.ablation == "none" else common.ablation_folder(ap, args.ablation, args.preset)
     results = run(cfg, methods, sizes, seeds, out, data_dir=args.data, full_grid=args.grid == "full", force=args.force,
                   progress=not args.quiet, reuse_from=reuse)
     print(results["markdown"])
@@ -466,4 +466,6 @@ def write_all(results: dict, out: Path) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

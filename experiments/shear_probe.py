@@ -234,4 +234,6 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

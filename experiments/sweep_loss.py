@@ -14,6 +14,7 @@ and seed) reuse its run folder instead of training again. Training and evaluatio
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from pathlib import Path
 
@@ -100,7 +101,7 @@ def main(argv=None) -> dict:
     if not base.depth_head:
         ap.error(f"--base {args.base} has no depth head; choose one with a decoder (e.g. dino_rd)")
     out = Path(args.out or common.ROOT / "results" / f"sweep_loss-{args.preset}").absolute()
-    abl = Path(args.ablation) if args.ablation else common.ROOT / "results" / f"ablation-{args.preset}"
+    abl = common.ablation_folder(ap, args.ablation, args.preset)
     results = run(cfg, base, sorted(set(args.betas)), args.alpha, seeds_n, out, abl, args.data, args.force,
                   not args.quiet)
     print(results["finding"])
@@ -271,4 +272,6 @@ def plot(results: dict, path: Path) -> Path:
 
 
 if __name__ == "__main__":
-    main()
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

@@ -70,6 +70,20 @@ def test_record_writes_release_layout(recorded, tmp_path):
     np.testing.assert_allclose(src2.forces[-1], [0, 0, 1.5])
 
 
+def test_a_second_recording_into_a_busy_folder_is_refused(recorded, tmp_path):
+    """It used to go on and, at its first press, rewrite data.csv without the first session's rows."""
+    from ffjax.runlock import FolderLockedError, folder_lock
+
+    path, _ = recorded
+    before = _digest(path.parent)
+    frames, _ = _camera(seed=9, n=3)
+    with folder_lock(path.parent, "calibration recording"), \
+            pytest.raises(FolderLockedError, match=rf"{path.parent} is in use by another calibration recording \(pid"):
+        record.session(frames, lambda i: "1.5" if i == 0 else "q", path.parent, per_press=1, warmup=0, bg_frames=1,
+                       log=lambda s: None)
+    assert _digest(path.parent) == before
+
+
 def _digest(folder):
     return {p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in sorted(folder.rglob("*")) if p.is_file()}

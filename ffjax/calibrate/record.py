@@ -15,7 +15,9 @@ The procedure (paper section IV-B: ~100 labelled frames of one indenter are enou
 Output (the FeelAnyForce release layout, readable by `python -m ffjax.calibrate --data OUT/data.csv`):
 OUT/data.csv (tactile, FT = "Fx Fy Fz 0 0 0"), OUT/tactile/000000.png ..., OUT/background.png. The CSV is
 rewritten after every press, so an interrupted session keeps what it recorded; re-running with the same
---out appends (with its own background_<k>.png and a per-row background column).
+--out appends (with its own background_<k>.png and a per-row background column). OUT is locked while a
+session records: a second session into it stops at once, naming the first (it would rewrite the CSV
+without the first one's rows).
 
 Serial gauges: pyserial (`pip install pyserial`) is imported only with --serial. The gauge must answer a
 line containing a number in newtons; --serial-query sends a request first (e.g. '?' for Mark-10 gauges).
@@ -34,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ffjax.data.sources import BACKGROUND_NAME, CSV_NAME, write_rgb
+from ffjax.runlock import folder_lock
 
 G = 9.81
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
@@ -112,7 +115,13 @@ def mean_frame(frames: Iterator[np.ndarray], n: int) -> np.ndarray:
 def session(frames: Iterator[np.ndarray], ask: Callable[[int], str | None], out, per_press: int = 5,
             warmup: int = 30, bg_frames: int = 10, log=print) -> Path:
     """The recording loop with its I/O injected: `frames` yields RGB uint8 frames (the camera), `ask(i)`
-    returns the typed answer for press i ("" / "q" / None ends). Returns the CSV path."""
+    returns the typed answer for press i ("" / "q" / None ends). Returns the CSV path. `out` is locked
+    throughout (FolderLockedError if another session holds it)."""
+    with folder_lock(out, "calibration recording"):
+        return _session(frames, ask, Path(out), per_press, warmup, bg_frames, log)
+
+
+def _session(frames, ask, out: Path, per_press: int, warmup: int, bg_frames: int, log) -> Path:
     for _ in range(warmup):
         next(frames)
     rec = Recorder(out, mean_frame(frames, bg_frames))
@@ -142,7 +151,7 @@ def camera_frames(index: int, flush: int = 4) -> Iterator[np.ndarray]:
 
     cap = cv2.VideoCapture(index)
     if not cap.isOpened():
-        raise RuntimeError(f"cannot open camera {index}")
+        raise RuntimeError(f"cannot open camera {index} (is the sensor plugged in? try another index)")
     try:
         while True:
             for _ in range(flush):
@@ -190,6 +199,9 @@ def main(argv=None) -> int:
     p.add_argument("--baud", type=int, default=9600)
     p.add_argument("--serial-query", default=None, help="text sent to the gauge before each reading")
     a = p.parse_args(argv)
+    from ffjax import cli
+
+    cli.check_out(p, a.out)  # before the camera: a typo in --out costs no warmup
     frames = camera_frames(a.camera)
     if a.resize:
         import cv2
@@ -216,4 +228,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import csv
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -59,9 +60,14 @@ def main(argv=None):
     p.add_argument("--out", required=True,
                    help="output folder (data.csv, tactile/, depth/, background.png)")
     args = p.parse_args(argv)
-    path = write_csv(open_split(args.split), args.out)
+    from ffjax import cli
+
+    src = open_split(args.split)
+    path = write_csv(src, cli.check_out(p, args.out))
     print(f"wrote {path}")
 
 
 if __name__ == "__main__":
-    main()
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

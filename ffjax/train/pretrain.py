@@ -20,6 +20,7 @@ import argparse
 import json
 import math
 import os
+import sys
 import time
 from functools import partial
 from pathlib import Path
@@ -540,6 +541,9 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     cfg = configs.from_cli(ap, args.preset, args.set)
     out = Path(args.out or Path("data") / args.preset / "pretrained")
+    from ffjax import cli
+
+    cli.check_out(ap, out)  # before pretraining: a read-only or mistyped --out fails now, named
     for kind in KINDS if args.backbone == "all" else (args.backbone,):
         folder = ensure(cfg, kind, run_dir(out, kind), force=args.force, progress=not args.quiet)
         if args.probe:
@@ -552,4 +556,6 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

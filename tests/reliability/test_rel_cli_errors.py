@@ -1,4 +1,5 @@
-"""Command line tools answer a bad argument with one `error:` line and exit code 2, not a traceback."""
+"""Command line tools answer a bad argument with one `error:` line (exit 2; a runtime fault such as a missing
+camera exits 1), naming the file or flag, not a traceback."""
 
 import os
 import subprocess
@@ -10,18 +11,31 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.mark.parametrize("cmd, fragment", [
-    (["ffjax.live", "--checkpoint", "{tmp}/nope", "--video", "x.mp4", "--headless"], "nope"),
-    (["ffjax.export", "--checkpoint", "{tmp}/nope", "--out", "{tmp}/ex"], "no such checkpoint folder"),
-    (["experiments.ablation", "--preset", "smoke", "--methods", "bogus", "--out", "{tmp}/abl"],
+@pytest.mark.parametrize("cmd, rc, fragment", [
+    (["ffjax.live", "--checkpoint", "{tmp}/nope", "--video", "x.mp4", "--headless"], 2, "nope"),
+    (["ffjax.export", "--checkpoint", "{tmp}/nope", "--out", "{tmp}/ex"], 2, "no such checkpoint folder"),
+    (["ffjax.export", "--checkpoint", "{tmp}/nope", "--out", "/dev/null/x.jaxexport"], 2,
+     "--out: output folder /dev/null is a file"),
+    (["ffjax.convert", "dinov2", "{tmp}/MISSING.pth", "--out", "{tmp}/conv"], 2, "MISSING.pth: no such file"),
+    (["ffjax.calibrate.record", "--camera", "99", "--out", "{tmp}/rec"], 1, "cannot open camera 99"),
+    (["ffjax.train.pretrain", "--preset", "smoke", "--out", "/dev/null/pre"], 2, "--out: output folder /dev/null/pre"),
+    (["ffjax.data.csv_layout", "--split", "{tmp}/nosplit", "--out", "{tmp}/csv"], 2, "nosplit"),
+    (["experiments.ablation", "--preset", "smoke", "--methods", "bogus", "--out", "{tmp}/abl"], 2,
      "unknown method 'bogus'"),
-    (["experiments.ablation", "--preset", "smoke", "--out", "/dev/null/abl"], "--out: output folder /dev/null/abl"),
+    (["experiments.ablation", "--preset", "smoke", "--out", "/dev/null/abl"], 2, "--out: output folder /dev/null/abl"),
+    (["experiments.sweep_loss", "--preset", "smoke", "--ablation", "{tmp}/MISSING", "--out", "{tmp}/sw"], 2,
+     "--ablation {tmp}/MISSING: no such folder"),
+    (["experiments.pareto", "--preset", "smoke", "--ablation", "{tmp}/MISSING", "--out", "{tmp}/par"], 2,
+     "--ablation {tmp}/MISSING: no such folder"),
+    (["experiments.downstream", "--preset", "smoke", "--checkpoint", "{tmp}/MISSING", "--out", "{tmp}/down"], 2,
+     "MISSING/model.json not found"),
 ])
-def test_bad_arguments_are_one_line_errors(tmp_path, cmd, fragment):
+def test_bad_arguments_are_one_line_errors(tmp_path, cmd, rc, fragment):
     env = {**os.environ, "FFJAX_DEBUG": ""}
     p = subprocess.run([sys.executable, "-m", *(c.format(tmp=tmp_path) for c in cmd)], capture_output=True,
-                       text=True, cwd=ROOT, env=env, timeout=300)
+                       text=True, cwd=ROOT, env=env, timeout=300, stdin=subprocess.DEVNULL)
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
-    assert p.returncode == 2, p.stderr
-    assert any((ln.startswith("error: ") or ": error: " in ln) and fragment in ln for ln in lines), p.stderr
+    errors = [ln for ln in lines if ln.startswith("error: ") or ": error: " in ln]
+    assert p.returncode == rc, p.stderr
+    assert len(errors) == 1 and fragment.format(tmp=tmp_path) in errors[0], p.stderr
     assert "Traceback" not in p.stderr
