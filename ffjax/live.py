@@ -180,6 +180,8 @@ def _read_video(cap):
 def image_frames(folder, fps: float = 25.0, exclude=()):
     from ffjax.data.sources import read_rgb
 
+    if not Path(folder).is_dir():
+        raise FileNotFoundError(f"--images {folder}: no such folder")
     files = sorted(p for p in Path(folder).iterdir() if p.suffix.lower() in IMAGE_EXTS
                    and p.resolve() not in {Path(e).resolve() for e in exclude})
     if not files:
