@@ -40,6 +40,9 @@ TIMEOUT = 600.0
 ONE_TENSOR_PKL = (b"\x80\x02ccollections\nOrderedDict\n)RX\x01\x00\x00\x00wctorch._utils\n_rebuild_tensor_v2\n(("
                   b"X\x07\x00\x00\x00storagectorch\nFloatStorage\nX\x01\x00\x00\x000X\x03\x00\x00\x00cpuK\x04tQ"
                   b"K\x00K\x04\x85K\x01\x85\x89tRs.")
+BROADCAST_N = 1 << 28  # ONE_TENSOR_PKL's 4-element storage viewed with stride 0 as 2^28 elements: 1 GiB
+BROADCAST_PKL = ONE_TENSOR_PKL.replace(b"K\x04\x85K\x01\x85",
+                                       b"J" + BROADCAST_N.to_bytes(4, "little") + b"\x85K\x00\x85")
 ERRORS = "exit 1/2, one `error:` line, no traceback"
 FULL_DISK = ("train into a 40 MiB tmpfs, fill it after the first checkpoint; free it, `--resume`",
              "rc 1, last line 'error: could not save … the disk is full' naming an intact step; resume rc 0")
@@ -478,6 +481,8 @@ def _refusal(d: Path, env: dict, tag: str, what: str, args: list, must: list, ab
 def case7_models(d: Path, sh: Shared) -> list[dict]:
     """One-line errors for a good model with a bad source, and for damaged bundles."""
     live = ["ffjax.live", "--video", sh.video, "--headless", "--checkpoint"]
+    no_json = shutil.copytree(sh.run, d / "run_no_model_json")  # checkpoints, but model.json lost
+    (no_json / "model.json").unlink()
     damaged = {}
     for name, damage in (("truncated", lambda b: _halve(b / "variables.msgpack")),
                          ("foreign", lambda b: (b / "model.json").write_text('{"hello": 1}')),
@@ -493,6 +498,8 @@ def case7_models(d: Path, sh: Shared) -> list[dict]:
          ["variables.msgpack"]),
         ("7k", "`live` on a bundle whose model.json is `{\"hello\": 1}`", live + [damaged["foreign"]], ["model.json"]),
         ("7l", "`live` on a bundle whose model.json is cut in half", live + [damaged["cut"]], ["model.json"]),
+        ("7o", "`train --resume` into a run folder with checkpoints but no model.json",
+         _train(sh.data, no_json, extra=["--resume"]), ["model.json"]),
     ]
     return [_refusal(d, sh.env, *s) for s in specs]
 
@@ -544,20 +551,27 @@ def _csv_split(folder: Path, n: int, seed: int) -> Path:
 
 
 def case9(d: Path, sh: Shared) -> list[dict]:
-    """A 32 KiB .pth whose storage inflates to 32 MiB is refused before anything is inflated."""
+    """Small .pth files declaring huge tensors are refused before anything is allocated: a 32 KiB file whose
+    storage inflates to 32 MiB, and a 4-element storage viewed with stride 0 as a 1 GiB tensor."""
     declared = 32 << 20
     bomb = _torch_zip(d / "BOMB.pth", ONE_TENSOR_PKL, bytes(declared))
+    wide = _torch_zip(d / "BROADCAST.pth", BROADCAST_PKL, bytes(16))
     base = _cli_rss(d, "baseline", sh.env, "-c", "import ffjax.train")
-    out = d / "run"
-    r = _cli_rss(d, "bomb", sh.env, "-m", *_train(sh.data, out, extra=["--init", f"dinov2:{bomb}"]))
-    grew = r["peak_mib"] - base["peak_mib"]
-    return [_row("9", f"`train --init dinov2:BOMB.pth` ({bomb.stat().st_size / 1024:.0f} KiB file declaring a "
-                 f"{declared >> 20} MiB storage)", "exit 2 'declares … more than the whole file'; peak RSS far "
-                 "below baseline + 32 MiB", r,
-                 {**_error_checks(r, (2,), ["declares", "more than the whole file"]), "baseline rc 0": base["rc"] == 0,
-                  "peak RSS < baseline + 8 MiB": grew < declared / 4 / 2**20, "no --out folder": not out.exists()},
-                 note=f"peak RSS {r['peak_mib']:.0f} MiB vs {base['peak_mib']:.0f} MiB for a bare "
-                 f"`import ffjax.train` (+{grew:.1f} MiB)")]
+    rows = []
+    for tag, path, size, what in (("9a", bomb, declared, "a storage inflating to"),
+                                  ("9b", wide, 4 * BROADCAST_N, "a stride-0 tensor of")):
+        out = d / f"run_{tag}"
+        r = _cli_rss(d, tag, sh.env, "-m", *_train(sh.data, out, extra=["--init", f"dinov2:{path}"]))
+        grew = r["peak_mib"] - base["peak_mib"]
+        rows.append(_row(tag, f"`train --init dinov2:{path.name}` ({path.stat().st_size / 1024:.1f} KiB file, {what} "
+                         f"{size >> 20} MiB)", "exit 2 'declares … more than the whole file'; peak RSS far below "
+                         f"baseline + {size >> 20} MiB", r,
+                         {**_error_checks(r, (2,), [path.name, "declares", "more than the whole file"]),
+                          "baseline rc 0": base["rc"] == 0, "peak RSS < baseline + 8 MiB": grew < 8,
+                          "no --out folder": not out.exists()},
+                         note=f"peak RSS {r['peak_mib']:.0f} MiB vs {base['peak_mib']:.0f} MiB for a bare "
+                         f"`import ffjax.train` (+{grew:.1f} MiB)"))
+    return rows
 
 
 CASES = [("1", case1), ("2", case2), ("3", case3), ("4", case4), ("5", case5), ("6", case6), ("7", case7_inputs),

@@ -1,5 +1,6 @@
 """experiments.faults_cases, issue 17's numbered cases: the cheapest ones run through the harness in CI (case 3,
-calibrate's refused flags; case 7's one-line errors that need no trained model), and its checks decide a row."""
+calibrate's refused flags; case 7's one-line errors that need no trained model; case 9's small files declaring
+huge tensors), and its checks decide a row."""
 
 import pytest
 from _tiny_data import write_tiny_split
@@ -18,6 +19,7 @@ def shared(tmp_path_factory):
 @pytest.mark.parametrize("fn, tags", [
     (faults_cases.case3, ["3a", "3b", "3c"]),
     (faults_cases.case7_inputs, ["7a", "7b", "7e", "7f", "7g", "7h", "7i", "7m", "7n"]),
+    (faults_cases.case9, ["9a", "9b"]),
 ])
 def test_cheap_cases_pass_through_the_real_clis(fn, tags, shared, tmp_path):
     rows = faults_cases.run_case(fn, tmp_path / fn.__name__, shared, fn.__name__)
