@@ -202,6 +202,8 @@ class Checkpointer:
     def __init__(self, run_dir, max_to_keep: int = 2):
         run_dir = Path(run_dir).absolute()  # orbax needs absolute paths
         self.run_dir = run_dir
+        # model.json as the checkpoints were written with it: a resume refused as another model's puts it back
+        self._model_json = (run_dir / MODEL_JSON).read_bytes() if (run_dir / MODEL_JSON).is_file() else None
         for sub in ("checkpoints", "best"):
             _drop_interrupted_deletes(run_dir / sub)
         # cleanup_tmp_directories: a save a kill interrupted is an unfinished `<step>.orbax-checkpoint-tmp*`
@@ -294,6 +296,7 @@ class Checkpointer:
             except Exception as e:
                 same = _same_model(path / "state", state.params)
                 if same is False and not refused:  # the run is another model's: no older step is better
+                    self._keep_model_json()
                     raise CheckpointError(f"cannot resume from {path}: {_why(e, False)}") from e
                 refused.append(str(e) if isinstance(e, CheckpointError) else f"{path} is unreadable: "
                                f"{_why(e, same)}")
@@ -306,6 +309,13 @@ class Checkpointer:
         if refused:
             raise CheckpointError("; ".join(refused) + "; no intact checkpoint is left: start a new run")
         return None
+
+    def _keep_model_json(self) -> None:
+        """Put back the model.json this run's checkpoints were written with: the trainer rewrites it before
+        restoring, and a refused resume must not leave another architecture's beside these weights."""
+        path = self.run_dir / MODEL_JSON
+        if self._model_json is not None and (not path.is_file() or path.read_bytes() != self._model_json):
+            atomic_write_bytes(path, self._model_json)
 
     def _move_aside(self, steps: list[int]) -> None:
         """Rename damaged steps to `<step>.corrupt` (orbax ignores them) and reopen the manager, so the resumed

@@ -73,11 +73,15 @@ def test_resume_with_another_method_or_architecture_is_refused(run, tmp_path):
     with pytest.raises(CheckpointError, match=rf"{dst}.* method 'dino_rd', not 'dino_r'"):
         train.train(configs.get("smoke", {"train.epochs": 2}), "dino_r", run["data"], dst, resume=True,
                     progress=False)
+    before = (dst / "model.json").read_bytes()
     wider = configs.get("smoke", {"train.epochs": 2, "model.vit.dim": 48})
     with pytest.warns(UserWarning, match="changed config") as warned:
         with pytest.raises(CheckpointError, match=rf"cannot resume from {dst / 'checkpoints'}.*another model"):
             train.train(wider, METHOD, run["data"], dst, resume=True, progress=False)
     assert {w.filename for w in warned if "changed config" in str(w.message)} == {__file__}  # points at the caller
+    # the refused resume used to leave the wider model's model.json beside these weights: the run no longer loaded
+    assert (dst / "model.json").read_bytes() == before
+    train.load_checkpoint(dst)
 
 
 @pytest.mark.parametrize("text", ["{not json", json.dumps({"hello": 1}), json.dumps([1, 2])])
