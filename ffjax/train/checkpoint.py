@@ -507,10 +507,22 @@ def _restore_variables(mgr, step: int, which: str, target: dict, path: Path) -> 
             }
         jax.tree.map(lambda a, b: _same_shape(a, b), target["params"], out["params"])
     except Exception as e:
-        raise CheckpointError(f"refusing {path}: {_why(e, _same_model(path / item, target['params']))}") from e
+        same = _same_model(path / item, target["params"])
+        hint = _LATEST_HINT if which == "best" and same is not False else ""
+        raise CheckpointError(f"refusing {path}: {_why(e, same).rstrip('.')}{hint}") from e
     saved = (_unjson(restored["meta"]) or {}).get("checksums") or {}
-    verify_checksums(out, {k: v for k, v in saved.items() if k.startswith(("['params']", "['batch_stats']"))}, path)
+    try:
+        verify_checksums(out, {k: v for k, v in saved.items() if k.startswith(("['params']", "['batch_stats']"))},
+                         path)
+    except CheckpointError as e:
+        if which != "best":
+            raise
+        raise CheckpointError(f"{str(e).rstrip('.')}{_LATEST_HINT}") from None
     return out
+
+
+# what to do when the best weights are damaged: the resume checkpoints are separate files
+_LATEST_HINT = "; the run's latest checkpoint may be intact: load it with --which latest (which='latest')"
 
 
 def _same_shape(a, b):
