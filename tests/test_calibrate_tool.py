@@ -128,6 +128,16 @@ def test_calibrate_cli_improves_and_writes_a_loadable_checkpoint(run_dir, record
     assert [p.name for p in (tmp_path / "c3").iterdir()] == [".lock"]
 
 
+def test_a_diverging_calibration_writes_nothing(run_dir, recorded, tmp_path, capsys):
+    """--lr 1e30 passes the flag check but the fit diverges: it used to write a NaN-weight bundle and exit 0."""
+    path, _ = recorded
+    out = tmp_path / "diverged"
+    assert tool.main(["--checkpoint", str(run_dir), "--data", str(path), "--out", str(out), "--steps", "20",
+                      "--layers", "regressor", "--lr", "1e30"]) == 2
+    assert "calibration diverged: the fitted regressor has NaN/inf weights" in capsys.readouterr().err
+    assert [p.name for p in out.iterdir()] == [".lock"]
+
+
 @pytest.mark.parametrize("flag", [("--lr", "nan"), ("--lr", "-1"), ("--lr", "inf"), ("--batch-size", "0"),
                                   ("--steps", "0"), ("--holdout", "1"), ("--holdout", "nan")])
 def test_calibrate_refuses_bad_flags_before_any_work(tmp_path, capsys, flag):

@@ -54,6 +54,14 @@ def _check_out(out: Path, checkpoint: Path, overwrite: bool) -> None:
         raise FileExistsError(f"{out} exists and is not empty: choose a new --out (or --overwrite)")
 
 
+def _check_finite(regressor, steps: int, lr: float, out: Path) -> None:
+    """Refuse a fit that diverged (a too-high --lr): it used to be written as a NaN-weight bundle, exit code 0."""
+    if not all(np.isfinite(x).all() for x in jax.tree.leaves(regressor)):
+        raise ValueError(f"calibration diverged: the fitted regressor has NaN/inf weights after {steps} steps at "
+                         f"--lr {lr:g}; nothing was written to {out}. Lower --lr (the default is the config's "
+                         "calibrate.lr)")
+
+
 def calibrate(checkpoint, data, out, layers: str = "last", steps: int | None = None, lr: float | None = None,
               holdout: float | None = None, seed: int = 0, background=None, batch_size: int | None = None,
               which: str = "best", overwrite: bool = False, log=print) -> dict:
@@ -101,6 +109,7 @@ def calibrate(checkpoint, data, out, layers: str = "last", steps: int | None = N
         before = metrics.summarize(core.predict_from_features(head, reg, feats, stats)[hold], y[hold], lo, hi)
         new_reg = core.fit_regressor(head, reg, feats[fit], y[fit], layers=layers, steps=steps, lr=lr,
                                      batch_size=batch_size, seed=seed, reg_stats=stats)
+        _check_finite(new_reg, steps, lr, out)
         pred = core.predict_from_features(head, new_reg, feats, stats)
         after = metrics.summarize(pred[hold], y[hold], lo, hi)
         after_fit = metrics.summarize(pred[fit], y[fit], lo, hi)
