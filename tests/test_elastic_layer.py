@@ -69,6 +69,64 @@ def test_sphere_contact_conditions():
         el.solve_contact(h, layer, 0.0)
 
 
+def test_tangential_compliance_limits():
+    t = 2.0
+    k = np.array([0.0, 1e-5, 50.0])
+    cl, ct, cn = el.tangential_compliance(k, t, G)
+    assert cl[:2] == pytest.approx([t / G, t / G], rel=1e-6) and ct[:2] == pytest.approx([t / G, t / G], rel=1e-6)
+    assert cl[2] == pytest.approx(1 / (2 * G * k[2]), rel=1e-9)  # Cerruti's half-space at nu = 0.5
+    assert ct[2] == pytest.approx(1 / (G * k[2]), rel=1e-9)
+    assert cn[0] == 0 and cn[2] < 1e-12  # the coupling needs the glass at a finite depth
+    for x in (1e-3, 20.0):  # branches meet the exact formula
+        below, above = el.tangential_compliance(np.array([x * (1 - 1e-9), x * (1 + 1e-9)]) / t, t, G)[0]
+        assert below == pytest.approx(above, rel=1e-5)
+
+
+def test_stuck_disc_between_half_space_and_thin_film():
+    # a << t: Mindlin's rigid disc in stick on a half-space, F = 8 G a s / (2 - nu) = 16 G a s / 3, raised a
+    # little by the glass; a >> t: the film in simple shear, F = G pi a^2 s / t, plus an edge term ~ t / a
+    c, layer, _, _ = _disc(1.0, 10.0, 0.1, 20.0)
+    ratio = el.solve_stick(c < el.FAR / 2, layer)["K"][0, 0] / (16 * G * 1.0 / 3)
+    assert 1.0 < ratio < 1.1
+    thin = []
+    for a in (4.0, 8.0):
+        c, layer, _, _ = _disc(a, 1.0, 0.25, 4.0)
+        thin.append(el.solve_stick(c < el.FAR / 2, layer)["K"][0, 0] / (G * np.pi * a * a / 1.0))
+    assert 1.0 < thin[1] < thin[0] < 1.5
+    assert (thin[0] - 1) / (thin[1] - 1) == pytest.approx(2.0, rel=0.1)  # the edge term halves as a doubles
+
+
+def test_stick_holds_the_gel_on_the_body_and_raises_it_ahead():
+    h, layer, X, Y = _disc(2.0, 4.0, 0.2, 8.0)
+    on = h < el.FAR / 2
+    r = el.solve_stick(on, layer)
+    K = r["K"]
+    assert K[0, 0] == pytest.approx(K[1, 1], rel=1e-3) and abs(K[0, 1]) < 1e-3 * K[0, 0]  # round: isotropic
+    ux, uy, depth = r["fields"][0]
+    assert np.abs(ux[on] - 1).max() < 1e-3 and np.abs(uy[on]).max() < 1e-3  # moves with the body
+    assert np.ptp(depth[on]) < 1e-3  # the body holds the surface: it only shifts as a whole
+    ahead, behind = (np.abs(Y) < 0.3) & (X > 2.5) & (X < 5), (np.abs(Y) < 0.3) & (X < -2.5) & (X > -5)
+    assert depth[ahead].mean() < 0 < depth[behind].mean()  # the gel rises ahead of the motion, sinks behind
+    far = np.hypot(X, Y) > 8
+    assert np.abs(ux[far]).max() < 0.2  # the drag decays away from the contact
+    with pytest.raises(ValueError, match="no contact"):
+        el.solve_stick(np.zeros_like(on), layer)
+
+
+def test_a_textured_face_holds_the_gel_like_a_smooth_one():
+    """Asperities at a pitch well under the gel's thickness pin the gel across the whole face: the knurled
+    14 mm cube and a smooth face of the same size resist shear alike, though the knurl touches less of it."""
+    from ffjax import sim
+    from ffjax.sim.shapes import MAP_MM_PER_PX, Shape, _grid, _rounded
+
+    X, Y = _grid()
+    smooth = Shape(_rounded(np.minimum(7 - np.abs(X), 7 - np.abs(Y)), 0.5), MAP_MM_PER_PX, name="smooth_14mm")
+    knurl, flat = (sim.press(s, "mini-1", (0.5, 0.0, 3.0), size=(48, 64), noise=False).meta
+                   for s in (sim.shapes.flat_punch(14.0), smooth))
+    assert knurl["contact_area_mm2"] < 0.6 * flat["contact_area_mm2"]
+    assert knurl["shear_stiffness_n_per_mm"] == pytest.approx(flat["shear_stiffness_n_per_mm"], rel=0.1)
+
+
 def test_layer_check_smoke(tmp_path):
     from experiments import layer_check
 

@@ -1,5 +1,5 @@
 """Contact mechanics of a linear-elastic, incompressible layer (nu = 0.5, shear modulus G, thickness t)
-bonded to a rigid base, pressed by a rigid frictionless body.
+bonded to a rigid base, pressed by a rigid frictionless body, then sheared in stick.
 
 The simulator's normal solve (`ffjax.sim.mechanics.solve_normal` adds large-strain stiffening and the pad's
 grid) and, at a finer grid, the yardstick of experiments.layer_check. It solves the exact small-strain
@@ -16,6 +16,18 @@ which tends to the half-space 1/(2 G k) for kt >> 1 and to the thin-layer (lubri
 for kt << 1. The contact problem (p >= 0, gap >= 0, p * gap = 0, sum p = F) is solved with the
 conjugate-gradient method of Polonsky & Keer (Wear 231, 1999) on a periodic grid whose margin around the
 body is several thicknesses wide (the layer's response decays over ~t, so the periodic images are negligible).
+
+Tangential traction q (the same layer; derived from the Stokes-form equations of an incompressible solid
+with the base fixed and the surface loaded): along the wavevector (L) and across it (T)
+    C_L(k) = (sinh 2kt + 2kt) / (2 G k (cosh 2kt + 2 (kt)^2 + 1)),   C_T(k) = tanh(kt) / (G k),
+both t / G for kt << 1 (simple shear of a thin film) and 1/(2 G k), 1/(G k) for kt >> 1 (Cerruti's
+half-space at nu = 0.5). The layer also couples the two: a tangential traction raises the surface ahead of
+it, w = -i C_N(k) q_L with C_N(k) = (kt)^2 / (G k (cosh 2kt + 2 (kt)^2 + 1)) (upward), which vanishes in
+both limits. `solve_stick` finds the traction under a rigid body stuck to the surface over its contact and
+displaced sideways (a linear problem, conjugate gradients): its stiffness is set by where the gel is held,
+so a body touching through fine asperities (knurl, grooves) at a pitch well under t holds the gel across
+its whole face, as a smooth face does. The normal solve ignores the coupling (the body is frictionless
+while it presses), and stick is assumed over the whole contact (no partial slip at its edge).
 """
 
 from __future__ import annotations
@@ -41,18 +53,108 @@ def compliance(k: np.ndarray, thickness: float, shear_mpa: float) -> np.ndarray:
     return out
 
 
+def tangential_compliance(k: np.ndarray, thickness: float, shear_mpa: float):
+    """(C_L, C_T, C_N) in mm / MPa for angular wavenumbers k (rad/mm): the surface's tangential displacement
+    per unit tangential traction along and across the wavevector, and the upward displacement per unit
+    traction along it (module docstring). At k = 0: t / G, t / G and 0."""
+    k = np.asarray(k, dtype=np.float64)
+    x = k * thickness
+    cl, ct, cn = (np.zeros_like(k) for _ in range(3))
+    zero, thin = x == 0, (x > 0) & (x < 1e-3)
+    cl[zero | thin] = ct[zero | thin] = thickness / shear_mpa  # series limits: avoid 0/0 round-off
+    cn[thin] = k[thin] * thickness**2 / (2 * shear_mpa)
+    mid = (x >= 1e-3) & (x < 20)
+    xm, km = x[mid], k[mid]
+    den = shear_mpa * km * (np.cosh(2 * xm) + 2 * xm**2 + 1)
+    cl[mid] = (np.sinh(2 * xm) + 2 * xm) / (2 * den)
+    cn[mid] = xm**2 / den
+    thick = x >= 20  # half-space within 1e-17
+    cl[thick] = 1.0 / (2 * shear_mpa * k[thick])
+    big = x >= 1e-3
+    ct[big] = np.tanh(x[big]) / (shear_mpa * k[big])
+    return cl, ct, cn
+
+
 class Layer:
-    """The layer's influence operator on an (H, W) grid of spacing dx (mm): u = apply(p)."""
+    """The layer's influence operators on an (H, W) grid of spacing dx (mm): u = apply(p) for a pressure,
+    (ux, uy, depth) = apply_coupled(qx, qy, p) for tangential traction and pressure together."""
 
     def __init__(self, shape: tuple[int, int], dx: float, thickness: float, shear_mpa: float):
         ky = 2 * np.pi * np.fft.fftfreq(shape[0], d=dx)
         kx = 2 * np.pi * np.fft.rfftfreq(shape[1], d=dx)
         self.shape, self.dx = tuple(shape), float(dx)
-        self.kernel = compliance(np.hypot(ky[:, None], kx[None, :]), thickness, shear_mpa)
+        self.thickness, self.shear_mpa = float(thickness), float(shear_mpa)
+        self._ky, self._kx = ky[:, None], kx[None, :]
+        self.kernel = compliance(np.hypot(self._ky, self._kx), thickness, shear_mpa)
+        self._coupled = None
 
     def apply(self, p: np.ndarray) -> np.ndarray:
         """Surface displacement (mm, + = into the layer) under the pressure field p (MPa)."""
         return np.fft.irfft2(self.kernel * np.fft.rfft2(p), s=self.shape)
+
+    def _coupled_kernels(self):
+        if self._coupled is None:  # built on first use: the normal solve does not need them
+            k = np.hypot(self._ky, self._kx)
+            cl, ct, cn = tangential_compliance(k, self.thickness, self.shear_mpa)
+            safe = np.where(k > 0, k, 1.0)  # k = 0: C_L = C_T, so any unit vector gives the uniform shear
+            ex, ey = np.where(k > 0, self._kx / safe, 1.0), np.where(k > 0, self._ky / safe, 0.0)
+            # Hermitian: depth (+ into the layer) = +i C_N q_L, and u_L = -i C_N p for a pressure p
+            self._coupled = (cl * ex**2 + ct * ey**2, (cl - ct) * ex * ey, cl * ey**2 + ct * ex**2,
+                             1j * cn * ex, 1j * cn * ey)
+        return self._coupled
+
+    def apply_coupled(self, qx: np.ndarray, qy: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Surface displacement (3, H, W) = (ux, uy, depth) in mm under the tangential traction (qx, qy) and
+        the pressure p (MPa); depth is + into the layer, as in `apply`."""
+        cxx, cxy, cyy, zx, zy = self._coupled_kernels()
+        fx, fy, fp = np.fft.rfft2(qx), np.fft.rfft2(qy), np.fft.rfft2(p)
+        back = lambda f: np.fft.irfft2(f, s=self.shape)  # noqa: E731
+        return np.stack([back(cxx * fx + cxy * fy - zx * fp), back(cxy * fx + cyy * fy - zy * fp),
+                         back(zx * fx + zy * fy + self.kernel * fp)])
+
+
+def solve_stick(contact: np.ndarray, layer: Layer, tol: float = 1e-6, max_iter: int = 500) -> dict:
+    """A rigid body stuck to the surface over `contact` (bool, the layer's grid) and moved sideways by 1 mm
+    along x, then along y, its load unchanged: the tangential tractions that hold the gel there and the
+    change of pressure that keeps the gel on the body (the coupling would lift it ahead and drop it behind;
+    the body only shifts up or down as a whole). Conjugate gradients on the contact, the pressure change
+    kept at zero sum.
+
+    Returns K, the 2x2 tangential stiffness (N/mm; F = K s for a displacement s), and per unit displacement
+    j the surface's change fields[j] (3, H, W) = (ux, uy, depth) in mm per mm of s over the whole grid, so
+    a displacement s gives s_x fields[0] + s_y fields[1]. Raises ValueError for an empty contact.
+    """
+    if contact.shape != layer.shape:
+        raise ValueError(f"contact {contact.shape} does not match the layer grid {layer.shape}")
+    if not contact.any():
+        raise ValueError("no contact: nothing holds the surface")
+    on = contact.astype(bool)
+
+    def residual_space(v):  # on the contact only; the pressure part with zero mean (its load is fixed)
+        v = np.where(on, v, 0.0)
+        v[2][on] -= v[2][on].mean()
+        return v
+
+    K, fields = np.zeros((2, 2)), []
+    for j in range(2):
+        target = np.zeros((3,) + layer.shape)
+        target[j][on] = 1.0
+        t = target * (layer.shear_mpa / layer.thickness)  # the thin-film traction: a close start
+        r = residual_space(target - layer.apply_coupled(*t))
+        d, rr = r.copy(), float((r * r).sum())
+        stop = tol**2 * float(on.sum())
+        for _ in range(max_iter):
+            if rr <= stop:
+                break
+            ad = residual_space(layer.apply_coupled(*d))
+            a = rr / float((d * ad).sum())
+            t += a * d
+            r -= a * ad
+            rr, rr_old = float((r * r).sum()), rr
+            d = r + (rr / rr_old) * d
+        fields.append(layer.apply_coupled(*t))
+        K[:, j] = t[:2].reshape(2, -1).sum(1) * layer.dx**2
+    return {"K": K, "fields": fields}
 
 
 def solve_contact(h: np.ndarray, layer: Layer, force_n: float, tol: float = 1e-7, max_iter: int = 2000,

@@ -9,9 +9,12 @@
   v / t = psi(u / t), psi(e) = ((1 - e)^-2 - (1 - e)) / 3, so a column squeezed towards the glass
   stiffens (psi(e) = e + e^2 + ...) and every body reaches 15 N before bottoming out. This is an
   approximation: the stiffening is local, the layer coupling linear.
-- Shear: stick displacement s = F_t / k_t, k_t = G (A/t + 16 a / 3) (thin layer + Mindlin's 8 G a / (2 - nu)
-  at nu = 0.5 for contacts smaller than the layer), capped by Coulomb |F_t| <= mu Fz (slip flag). The
-  tangential field decays away from the contact; incompressibility raises a bulge in front.
+- Shear: the body sticks to the gel over its contact and moves sideways by s = K^-1 F_t, where K (2x2) is the
+  same layer's tangential stiffness for that contact (`elastic_layer.solve_stick`: G A / t for a wide face,
+  Mindlin's 16 G a / 3 for a small one, and every contact shape between; a face touching through fine
+  asperities holds the gel across the whole face). The solve gives the surface's tangential displacement
+  everywhere (the gel around the contact dragged along, decaying over ~t) and the rise ahead of the motion
+  and the dip behind it. |F_t| is capped by Coulomb's mu Fz (slip flag); no partial slip at the contact edge.
 """
 
 from __future__ import annotations
@@ -26,8 +29,6 @@ from ffjax.sim import elastic_layer
 
 MAX_STRAIN = 0.9  # presses needing a deeper compression than this x thickness are refused (gel bottoms out)
 SOLVE_MARGIN_T = 2.0  # layer beyond the pad in the solve, x thickness: its response decays over ~t
-SHEAR_DECAY_FRAC = 0.5  # decay length of the tangential field outside the contact, x thickness
-BULGE_FRAC = 0.5  # part of the displaced volume that rises as a bulge (the rest spreads in the layer)
 _EPS = np.linspace(0.0, 0.98, 4096)  # compressive strain table for psi and its inverse
 _PSI = ((1.0 - _EPS) ** -2 - (1.0 - _EPS)) / 3.0
 _OUTER_TOL = 1e-4  # fixed point on the approach: stop when it moves less than this x thickness
@@ -63,6 +64,15 @@ def _layer(shape: tuple[int, int], dx: float, thickness: float, shear_mpa: float
     return elastic_layer.Layer(shape, dx, thickness, shear_mpa)
 
 
+def _padded_layer(size: tuple[int, int], mm_per_px: float, thickness: float, shear_mpa: float):
+    """(margin m, Layer) for a pad grid of `size` with SOLVE_MARGIN_T thicknesses of free gel around it
+    (a little more, to an FFT-friendly size); the pad sits at [m:m+H, m:m+W]."""
+    H, W = size
+    m = int(np.ceil(SOLVE_MARGIN_T * thickness / mm_per_px))
+    return m, _layer((_fast_len(H + 2 * m), _fast_len(W + 2 * m)), float(mm_per_px), float(thickness),
+                     float(shear_mpa))
+
+
 @dataclasses.dataclass
 class Normal:
     delta: float  # approach (mm) from the first touch: the deepest compression
@@ -79,11 +89,10 @@ def solve_normal(h: np.ndarray, mm_per_px: float, shear_mpa: float, thickness: f
     if fz <= 0 or not body_pad.any():
         zero = np.zeros((H, W))
         return Normal(0.0, zero, zero.astype(bool), zero)
-    m = int(np.ceil(SOLVE_MARGIN_T * thickness / mm_per_px))
-    hb = np.full((_fast_len(H + 2 * m), _fast_len(W + 2 * m)), elastic_layer.FAR)  # extra margin: fast FFT
+    m, layer = _padded_layer((H, W), mm_per_px, thickness, shear_mpa)
+    hb = np.full(layer.shape, elastic_layer.FAR)
     hb[m:m + H, m:m + W] = np.where(body_pad, h - float(h[body_pad].min()), elastic_layer.FAR)
     body = hb < elastic_layer.FAR / 2
-    layer = _layer(hb.shape, float(mm_per_px), float(thickness), float(shear_mpa))
     target, delta, p = hb, None, None
     for _ in range(30):  # fixed point on the approach: the stiffened target depends on it
         r = elastic_layer.solve_contact(target, layer, fz, tol=1e-6, p0=p)
@@ -124,36 +133,37 @@ def smooth(x: np.ndarray, sigma_px: float) -> np.ndarray:
 @dataclasses.dataclass
 class Shear:
     force: np.ndarray  # (2,) applied tangential force, N (capped)
-    disp_mm: np.ndarray  # (2,) stick displacement of the contact, mm
+    disp_mm: np.ndarray  # (2,) stick displacement of the body (and the gel it holds), mm
     slip: bool
-    stiffness: float  # k_t, N/mm
-    field: np.ndarray | None  # (H, W) weight of the displacement, 1 in the contact, decaying outside
+    stiffness: float  # |F_t| / |s| along the applied force, N/mm (0 without shear)
+    field: np.ndarray | None  # (H, W, 2) tangential displacement of the gel surface on the pad grid, mm
+    bulge: np.ndarray | None  # (H, W) surface displacement it causes, mm (+ = into the gel, - = rising)
 
 
-def shear(ft, fz: float, contact: np.ndarray, cell_area: float, shear_mpa: float, thickness: float,
-          friction: float, mm_per_px: float, area: float | None = None) -> Shear:
-    """Tangential response to the requested shear ft = (Fx, Fy) with the Coulomb cap mu * Fz.
-    `area` (mm^2) overrides the contact area measured on `contact` (e.g. from a finer grid)."""
+def shear(ft, fz: float, contact: np.ndarray, mm_per_px: float, shear_mpa: float, thickness: float,
+          friction: float) -> Shear:
+    """Tangential response to the requested shear ft = (Fx, Fy) with the Coulomb cap mu * Fz, for a body in
+    stick over `contact` (bool, the pad grid of spacing mm_per_px: the normal solve's)."""
     ft = np.asarray(ft, dtype=np.float64)
-    area = float(contact.sum()) * cell_area if area is None else area
     cap = friction * fz
     mag = float(np.hypot(*ft))
     slip = mag > cap + 1e-9
     applied = ft * (cap / mag) if slip else ft
-    if area <= 0 or not np.any(applied) or not contact.any():
-        return Shear(applied, np.zeros(2), slip, 0.0, None)
-    a = np.sqrt(area / np.pi)
-    k_t = shear_mpa * (area / thickness + 16.0 / 3.0 * a)
-    g = smooth(contact.astype(np.float32), SHEAR_DECAY_FRAC * thickness / mm_per_px)
-    field = np.clip(g / (0.5 * max(float(g.max()), 1e-6)), 0, 1)
-    field = np.maximum(field, contact)
-    return Shear(applied, applied / k_t, slip, k_t, field.astype(np.float32))
+    if not np.any(applied) or not contact.any():
+        return Shear(applied, np.zeros(2), slip, 0.0, None, None)
+    H, W = contact.shape
+    m, layer = _padded_layer((H, W), mm_per_px, thickness, shear_mpa)
+    held = np.zeros(layer.shape, bool)
+    held[m:m + H, m:m + W] = contact
+    r = elastic_layer.solve_stick(held, layer)
+    s = np.linalg.solve(r["K"], applied)
+    ux, uy, dz = s[0] * r["fields"][0] + s[1] * r["fields"][1]
+    inner = (slice(m, m + H), slice(m, m + W))
+    field = np.stack([ux[inner], uy[inner]], -1).astype(np.float32)
+    return Shear(applied, s, slip, float(np.hypot(*applied) / np.hypot(*s)), field, dz[inner].astype(np.float32))
 
 
-def shear_bulge(sh: Shear, thickness: float, mm_per_px: float) -> np.ndarray | float:
-    """Surface displacement (mm, + = into the gel) from the layer's volume moving with the shear:
-    dz = -(t/2) div(s w) for a displacement growing linearly through the thickness."""
-    if sh.field is None:
-        return 0.0
-    gy, gx = np.gradient(sh.field, mm_per_px)
-    return BULGE_FRAC * thickness / 2 * (sh.disp_mm[0] * gx + sh.disp_mm[1] * gy)
+def shear_bulge(sh: Shear) -> np.ndarray | float:
+    """The surface displacement (mm, + = into the gel) that the shear adds: the gel rising ahead of the
+    motion and sinking behind it (0.0 without shear)."""
+    return 0.0 if sh.bulge is None else sh.bulge

@@ -133,13 +133,14 @@ def _press(shape: Shape, sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, s
     # solved surface is smooth on the solve grid's scale
     surface = cv2.resize(normal.surface.astype(np.float32), (size[1], size[0]), interpolation=cv2.INTER_LINEAR)
     depth = np.maximum(surface, d) if normal.delta > 0 else surface
-    contact = cv2.resize(normal.contact.astype(np.float32), (size[1], size[0]), interpolation=cv2.INTER_LINEAR) > 0.5
-    sh = mechanics.shear(f[:2], float(f[2]), contact, dx * dy, gel.shear_mpa, gel.thickness_mm, gel.friction,
-                         mpp, area=float(normal.contact.sum()) * cell_s)
+    sh = mechanics.shear(f[:2], float(f[2]), normal.contact, (sdx + sdy) / 2, gel.shear_mpa, gel.thickness_mm,
+                         gel.friction)
     disp_px = None
     if sh.field is not None:
-        depth = depth + mechanics.shear_bulge(sh, gel.thickness_mm, mpp)
-        disp_px = sh.field[..., None] * (sh.disp_mm / mpp).astype(np.float32)
+        to_render = lambda a: cv2.resize(a, (size[1], size[0]), interpolation=cv2.INTER_LINEAR)  # noqa: E731
+        bulge = mechanics.shear_bulge(sh)
+        depth = depth + (to_render(bulge) if np.ndim(bulge) else bulge)
+        disp_px = to_render(sh.field) / np.float32(mpp)
     # the pigment skin cannot bend sharply: soften kinks at the contact edge (~0.1 mm)
     depth = mechanics.smooth(depth.astype(np.float32), SKIN_MM / mpp)
     image = optics.render(sensor, size, depth, disp_px, seed if noise else None)
