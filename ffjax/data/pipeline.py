@@ -17,6 +17,11 @@ from ffjax.data.stats import Stats, source_background
 IN_MEMORY_BYTES = 4 << 30
 
 
+def fits_in_memory(n: int, input_size: int) -> bool:
+    """Whether n preprocessed records (image + depth, float32) fit the in-memory path's budget."""
+    return n * input_size**2 * 16 <= IN_MEMORY_BYTES
+
+
 def load_arrays(source, stats: Stats, input_size: int, chunk: int = 512) -> dict:
     """The whole split preprocessed: {"image": (N,S,S,3), "depth": (N,S,S), "force": (N,3)} float32."""
     n = len(source)
@@ -76,7 +81,7 @@ def make_dataset(source, stats: Stats, input_size: int, batch_size: int, seed: i
     """
     n = len(source)
     if in_memory is None:
-        in_memory = arrays is not None or (worker_count == 0 and n * input_size**2 * 16 <= IN_MEMORY_BYTES)
+        in_memory = arrays is not None or (worker_count == 0 and fits_in_memory(n, input_size))
     if in_memory:
         arrays = arrays if arrays is not None else load_arrays(source, stats, input_size)
         ds = grain.MapDataset.range(len(arrays["force"]))

@@ -241,7 +241,7 @@ class Checkpointer:
             # A resumed run replays steps a killed one already finished: that best checkpoint is the same
             # bytes (the replay is exact), and keeping it means there is never a moment without one.
             return
-        variables = {"params": state.params, "batch_stats": state.batch_stats}
+        variables = _best_variables(state)
         meta = {**meta, "checksums": tree_checksums(variables)}
         with self._saving(f"best checkpoint step {step} in {self.run_dir / 'best'}"):
             self.best.save(
@@ -251,6 +251,12 @@ class Checkpointer:
                 ),
                 force=True,
             )
+
+    def compile_checksums(self, state) -> None:
+        """Compile the checksum programs of both saves (the run state; the best variables) now. Each is one
+        program over every tensor, seconds to compile on a CPU, which would otherwise stall the first save."""
+        tree_checksums(state.arrays())
+        tree_checksums(_best_variables(state))
 
     def _saving(self, what: str):
         """Context that turns any write failure (raised now or by the async writer) into CheckpointWriteError."""
@@ -343,6 +349,10 @@ class Checkpointer:
             self.latest.close()
         finally:
             self.best.close()
+
+
+def _best_variables(state) -> dict:
+    return {"params": state.params, "batch_stats": state.batch_stats}
 
 
 def _drop_interrupted_deletes(folder: Path) -> None:

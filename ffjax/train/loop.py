@@ -1,4 +1,9 @@
-"""The training loop: epochs of jitted steps, validation each epoch, best/latest checkpoints, resume.
+"""The training loop: epochs of jitted steps, validation every train.val_every epochs, best/latest checkpoints,
+resume.
+
+At the speed of its step (issue 14; docs/benchmarks.md): no host sync per step (metrics are read every log
+interval, one step behind the device), each split is preprocessed once, and every program besides the step
+(evaluation, feature statistics, checkpoint checksums) is compiled before step 1, not mid-run.
 
 Resuming restores params, optimizer, step, rng key and the grain iterator position from the newest
 checkpoint and replays nothing else, so a killed-and-resumed run ends with the same numbers as an
@@ -112,25 +117,65 @@ def open_sources(data_arg):
     return _open(train_src), (_open(val_src) if val_src is not None else None)
 
 
+class _Split:
+    """A split for the ordered passes of evaluation (validation, feature statistics): preprocessed into memory
+    once when it fits the in-memory budget (the rule make_dataset follows), so no pass re-reads or
+    re-preprocesses a record; streamed per pass otherwise."""
+
+    def __init__(self, source, stats, input_size: int):
+        from ffjax.data import load_arrays
+        from ffjax.data.pipeline import fits_in_memory
+
+        self.source, self.stats, self.input_size = source, stats, input_size
+        self.arrays = load_arrays(source, stats, input_size) if fits_in_memory(len(source), input_size) else None
+
+    def batches(self, batch_size: int):
+        """Every record once, in order; the last batch may be short (as metrics.iterate_once)."""
+        if self.arrays is None:
+            yield from fmetrics.iterate_once(self.source, self.stats, self.input_size, batch_size)
+            return
+        for a in range(0, len(self.arrays["force"]), batch_size):
+            yield {k: v[a: a + batch_size] for k, v in self.arrays.items()}
+
+
+def _eval_batch(batch: dict, batch_size: int, mesh) -> dict:
+    """A validation batch padded to the compiled size, with a mask over its real rows, on the mesh."""
+    n = len(batch["force"])
+    padded = {k: _pad(np.asarray(v), batch_size) for k, v in batch.items()}
+    padded["mask"] = (np.arange(batch_size) < n).astype(np.float32)
+    return shard_batch(padded, mesh)
+
+
 def validate(state, val_src, stats, input_size: int, batch_size: int, mesh) -> dict:
     """Total/force/depth validation loss plus the force metric (normalized by the TRAIN force range)."""
+    return _validate(state, _Split(val_src, stats, input_size), batch_size, mesh)
+
+
+def _validate(state, split: _Split, batch_size: int, mesh) -> dict:
     sums, count, preds, trues = {"loss": 0.0, "force_l1": 0.0, "depth_mse": 0.0}, 0, [], []
-    for batch in fmetrics.iterate_once(val_src, stats, input_size, batch_size):
+    for batch in split.batches(batch_size):
         n = len(batch["force"])
-        padded = {k: _pad(np.asarray(v), batch_size) for k, v in batch.items()}
-        padded["mask"] = (np.arange(batch_size) < n).astype(np.float32)
-        m = jax.device_get(eval_step(state, shard_batch(padded, mesh)))
+        m = jax.device_get(eval_step(state, _eval_batch(batch, batch_size, mesh)))
         for k in sums:
             sums[k] += float(m[k]) * n
         count += n
         preds.append(np.asarray(m["force"])[:n])
         trues.append(np.asarray(batch["force"]))
     out = {k: v / max(count, 1) for k, v in sums.items()}
-    out.update(fmetrics.summarize(np.concatenate(preds), np.concatenate(trues), stats.force_min, stats.force_max))
+    lo, hi = split.stats.force_min, split.stats.force_max
+    out.update(fmetrics.summarize(np.concatenate(preds), np.concatenate(trues), lo, hi))
     return out
 
 
-def refresh_feature_norm(state, source, stats, input_size: int, batch_size: int, mesh, max_samples: int = 2048):
+def _has_feature_norm(state) -> bool:
+    return "feature_norm" in (state.batch_stats or {}).get("regressor", {})
+
+
+def _features(state, images, mesh):
+    return feature_step(state, shard_batch({"image": images}, mesh)["image"])
+
+
+def refresh_feature_norm(state, split: _Split, batch_size: int, mesh, max_samples: int = 2048):
     """Set the regressor's feature-normalization statistics to the exact mean/variance of the backbone's
     features over (up to max_samples) training frames, with the current weights; other states unchanged.
 
@@ -139,15 +184,13 @@ def refresh_feature_norm(state, source, stats, input_size: int, batch_size: int,
     its constant part, which moves more than that with every update, so an average over past steps is off
     by many standard deviations (measured: validation 28% with it, 4.1% with the batch's own statistics).
     """
-    reg = (state.batch_stats or {}).get("regressor", {})
-    if "feature_norm" not in reg:
+    if not _has_feature_norm(state):
         return state
-    feats = []
-    for batch in fmetrics.iterate_once(source, stats, input_size, batch_size):
+    reg, feats = state.batch_stats["regressor"], []
+    for batch in split.batches(batch_size):
         if len(batch["image"]) < batch_size or len(feats) * batch_size >= max_samples:
             break  # full batches only: one compiled shape
-        feats.append(np.asarray(jax.device_get(feature_step(state, shard_batch({"image": batch["image"]}, mesh)[
-            "image"])), np.float64))
+        feats.append(np.asarray(jax.device_get(_features(state, batch["image"], mesh)), np.float64))
     if not feats:
         return state
     f = np.concatenate(feats)
@@ -155,6 +198,20 @@ def refresh_feature_norm(state, source, stats, input_size: int, batch_size: int,
     new = {"mean": jnp.asarray(f.mean(0), dtype), "var": jnp.asarray(f.var(0), dtype)}
     batch_stats = {**state.batch_stats, "regressor": {**reg, "feature_norm": new}}
     return replicate(state.replace(batch_stats=batch_stats), mesh)
+
+
+def _compile_ahead(state, train_data: _Split, val_data: _Split | None, batch_size: int, mesh, ckpt) -> None:
+    """Compile every program the loop runs besides its step before step 1: evaluation, feature statistics
+    and the checkpoint checksums. Each takes seconds on a CPU; compiled at first use they stall training
+    mid-run (at the first validation, the first save). Run on real batches, so the shapes are exactly the
+    loop's; all are pure (nothing changes), and every complete run validates (given a val split) and saves."""
+    first = next(val_data.batches(batch_size), None) if val_data is not None else None
+    if first is not None:
+        jax.block_until_ready(eval_step(state, _eval_batch(first, batch_size, mesh)))
+    first = next(train_data.batches(batch_size))
+    if _has_feature_norm(state) and len(first["image"]) == batch_size:
+        jax.block_until_ready(_features(state, first["image"], mesh))
+    ckpt.compile_checksums(state)
 
 
 def _pad(x: np.ndarray, size: int) -> np.ndarray:
@@ -315,7 +372,11 @@ def _train(
     # a full disk fails here, before step 1: two latest checkpoints, the best one, and one being written
     check_writable(run_dir, 4 * sum(int(np.asarray(x).nbytes) for x in jax.tree.leaves(state.arrays())))
     state = replicate(state, mesh)
-    it = iter(fdata.make_dataset(train_src, stats, input_size, bs, seed=int(cfg["seed"]), shuffle=True))
+    # each split preprocessed once: the training batches, feature statistics and validation all read these
+    train_data = _Split(train_src, stats, input_size)
+    val_data = _Split(val_src, stats, input_size) if val_src is not None else None
+    it = iter(fdata.make_dataset(train_src, stats, input_size, bs, seed=int(cfg["seed"]), shuffle=True,
+                                 arrays=train_data.arrays))
     meta = {
         "epoch_loss": 0.0,
         "epoch_force_l1": 0.0,
@@ -338,14 +399,19 @@ def _train(
         it.set_state(data_state)
     start = int(jax.device_get(state.step))
     log = _Log(run_dir, start if resume else None)
+    if start < total:
+        _compile_ahead(state, train_data, val_data, bs, mesh, ckpt)
 
     pending: list = []
     t0, elapsed0 = time.perf_counter(), float(meta["elapsed_s"])
     bar = _progress(progress, total, start, spec.name)
 
-    def flush():
-        rows = jax.device_get(pending)
-        pending.clear()
+    def flush(keep: int = 0):
+        """Log the pending steps' metrics, all but the newest `keep`: reading the newest step's would idle the
+        device while the host writes the log, where leaving it queued keeps the device busy meanwhile."""
+        n = max(len(pending) - keep, 0)
+        rows = jax.device_get(pending[:n])
+        del pending[:n]
         for step, m in rows:
             ok = math.isfinite(float(m["loss"])) and math.isfinite(float(m["grad_norm"]))
             row = {
@@ -382,8 +448,10 @@ def _train(
             # by steps, not at every epoch end: on a small dataset an epoch is seconds, and each async save
             # costs the device ~0.6 s of CPU (measured on 2 cores); the last step always saves
             save = done % ckpt_every == 0 or done == total or done == max_steps
-            if save or epoch_end or done % log_every == 0:
-                flush()
+            if save or epoch_end:
+                flush()  # every step up to a checkpoint is checked finite; epoch means need every step
+            elif done % log_every == 0:
+                flush(keep=1)
             if epoch_end:
                 epoch = done // steps_per_epoch
                 evaluate = epoch % val_every == 0 or done == total
@@ -391,9 +459,9 @@ def _train(
                 if evaluate:
                     jax.block_until_ready(state.params)  # queued train steps are not evaluation time
                     t_eval = time.perf_counter()
-                    state = refresh_feature_norm(state, train_src, stats, input_size, bs, mesh)
-                _end_epoch(state, meta, done, epoch, val_src if evaluate else _SKIP, stats, input_size, bs,
-                           mesh, ckpt, log, elapsed0 + time.perf_counter() - t0)
+                    state = refresh_feature_norm(state, train_data, bs, mesh)
+                _end_epoch(state, meta, done, epoch, val_data if evaluate else _SKIP, bs, mesh, ckpt, log,
+                           elapsed0 + time.perf_counter() - t0)
                 if evaluate:
                     meta["eval_s"] = meta.get("eval_s", 0.0) + time.perf_counter() - t_eval
             if save:
@@ -466,10 +534,10 @@ def _nonfinite_error(row, step, ckpt, run_dir, n, seed, bs) -> NonFiniteLossErro
     )
 
 
-_SKIP = object()  # _end_epoch's val_src on an epoch that does not validate
+_SKIP = object()  # _end_epoch's val_data on an epoch that does not validate
 
 
-def _end_epoch(state, meta, step, epoch, val_src, stats, input_size, bs, mesh, ckpt, log, elapsed):
+def _end_epoch(state, meta, step, epoch, val_data, bs, mesh, ckpt, log, elapsed):
     n = max(meta["epoch_steps"], 1)
     row = {
         "epoch": epoch,
@@ -479,11 +547,11 @@ def _end_epoch(state, meta, step, epoch, val_src, stats, input_size, bs, mesh, c
         "time_s": round(elapsed, 2),
     }
     meta.update(epoch_loss=0.0, epoch_force_l1=0.0, epoch_steps=0)
-    if val_src is _SKIP:  # not a validation epoch (train.val_every): the row has train columns only
+    if val_data is _SKIP:  # not a validation epoch (train.val_every): the row has train columns only
         log.epoch(row)
         return
-    if val_src is not None:
-        val = validate(state, val_src, stats, input_size, bs, mesh)
+    if val_data is not None:
+        val = _validate(state, val_data, bs, mesh)
         meta["last_val"] = {**val, "epoch": epoch, "step": step}
         log.row({"kind": "val", "step": step, "epoch": epoch, **val})
         row.update(
