@@ -4,6 +4,7 @@ pipeline ever bounds a training step."""
 from __future__ import annotations
 
 import json
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -100,19 +101,45 @@ class Repeated:
         return self._all["force"][self._idx(0, self.n)].astype(np.float32)
 
 
+class _PureStep:
+    """The bare jitted step on one ready device batch (the first batch of `source`), compiled and warmed."""
+
+    def __init__(self, cfg: dict, method: str, source, size: int, batch: int, warmup: int):
+        stats = data.Stats.compute(source, cfg["data"], size)
+        self.state = train.init_state(cfg, registry.get(method), jax.random.PRNGKey(0), size)
+        self.batch = jax.device_put(next(iter(data.make_dataset(source, stats, size, batch, 0))))
+        self.run(warmup)
+
+    def run(self, steps: int) -> float:
+        """Seconds for `steps` steps, dispatch to the last result."""
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            self.state, m = train.train_step(self.state, self.batch)
+        jax.block_until_ready(m["loss"])
+        return time.perf_counter() - t0
+
+
 def loop_efficiency(cfg: dict, method: str, source, size: int, batch: int, n_train: int, n_val: int,
                     epochs: int, warmup: int = 3) -> dict:
     """ffjax.train.loop.train against its own jitted step, over the same steps at the same batch.
 
     The loop trains `epochs` epochs of `n_train` records (validation on `n_val`, checkpoints, logs, the
-    data pipeline, all as configured in cfg); its clock starts after `warmup` steps (compilation excluded)
-    and stops when train() returns (final validation and checkpoint waits included). The pure step runs
-    the same number of steps on one ready device batch. `efficiency` = pure ms/step over loop ms/step;
-    `efficiency_training` leaves out the loop's evaluation (feature-norm refresh + validation, reported as
-    `eval_share`), whose cost is set by train.val_every rather than by the loop's overhead."""
+    data pipeline, all as configured in cfg). Its clock starts after `warmup` steps and stops when train()
+    returns: everything the loop does in between is in it (final validation and checkpoint waits
+    included); the one-time work before step 1 (preprocessing the splits, compiling the step and the
+    evaluation and checksum programs) is not, and is reported as `startup_s`. The pure step runs the same
+    number of steps on one ready device batch, half just before the loop and half just after, so a change
+    of machine load during the measurement weighs on both sides alike.
+    `efficiency` = pure s / loop s. `efficiency_training` = pure s / (loop s - eval_s): the loop's training
+    steps alone, with its evaluation (feature-norm refresh + validation + the best checkpoint, reported as
+    `eval_s` and `eval_share`) left out, as train.val_every sets that cost, not the loop's overhead."""
     cfg = {**cfg, "train": {**cfg["train"], "batch_size": batch, "epochs": epochs}}
     cfg["data"] = {**cfg["data"], "input_size": size}
     tr, va = Repeated(source, n_train), Repeated(source, n_val)
+    steps = epochs * (n_train // batch) - warmup
+    pure = _PureStep(cfg, method, tr, size, batch, warmup)
+    load = [os.getloadavg()[0]]
+    pure_s = pure.run(steps // 2)
     clock = {}
 
     def cb(done, state):
@@ -121,24 +148,17 @@ def loop_efficiency(cfg: dict, method: str, source, size: int, batch: int, n_tra
             clock["t0"] = time.perf_counter()
 
     with tempfile.TemporaryDirectory() as tmp:
+        t_call = time.perf_counter()
         summary = train.train(cfg, method, (tr, va), Path(tmp) / "run", callback=cb, progress=False)
-    loop_s = time.perf_counter() - clock["t0"]
-    steps = summary["steps"] - warmup
-    stats = data.Stats.compute(tr, cfg["data"], size)
-    state = train.init_state(cfg, registry.get(method), jax.random.PRNGKey(0), size)
-    fixed = jax.device_put(next(iter(data.make_dataset(tr, stats, size, batch, 0))))
-    for _ in range(warmup):
-        state, m = train.train_step(state, fixed)
-    jax.block_until_ready(m["loss"])
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        state, m = train.train_step(state, fixed)
-    jax.block_until_ready(m["loss"])
-    pure_s = time.perf_counter() - t0
+        loop_s = time.perf_counter() - clock["t0"]
+    pure_s += pure.run(steps - steps // 2)
+    load.append(os.getloadavg()[0])
+    assert summary["steps"] - warmup == steps
     eval_s = summary["eval_time_s"]
     return {"method": method, "batch": batch, "input_size": size, "steps": steps, "epochs": epochs,
             "steps_per_epoch": summary["steps_per_epoch"], "val_every": cfg["train"].get("val_every", 1),
             "ckpt_every": cfg["train"]["ckpt_every"], "n_train": n_train, "n_val": n_val,
             "loop_ms": loop_s / steps * 1e3, "pure_ms": pure_s / steps * 1e3, "eval_s": eval_s,
-            "efficiency": pure_s / loop_s, "efficiency_training": pure_s / max(loop_s - eval_s, 1e-9),
-            "eval_share": eval_s / loop_s}
+            "startup_s": clock["t0"] - t_call, "efficiency": pure_s / loop_s,
+            "efficiency_training": pure_s / max(loop_s - eval_s, 1e-9), "eval_share": eval_s / loop_s,
+            "load1": load}

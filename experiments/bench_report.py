@@ -172,16 +172,7 @@ def report(res: dict) -> str:
         out.append(md_table(["pipeline", "batches/s", "img/s", "x train consumption", "first batch s"],
                             [[k, _f(v["batches_s"]), _f(v["img_s"]), _f(v["ratio_to_train_consumption"], 1),
                               _f(v["first_batch_s"], 2)] for k, v in pipe.items() if isinstance(v, dict)]))
-        le = d.get("loop_efficiency") or {}
-        if le:
-            out.append("\nThe training loop (`ffjax.train.loop.train`: data, logs, checkpoints, validation) against "
-                       "its own jitted step on one ready batch, over the same steps (compilation excluded):\n\n")
-            out.append(md_table(
-                ["val_every (epochs)", "steps", "steps/epoch", "loop ms/step", "pure step ms", "efficiency",
-                 "efficiency without evaluation", "evaluation share"],
-                [[v["val_every"], v["steps"], v["steps_per_epoch"], _f(v["loop_ms"]), _f(v["pure_ms"]),
-                  _f(v["efficiency"], 3), _f(v["efficiency_training"], 3), _f(v["eval_share"], 3)]
-                 for v in le.values()]))
+        out.append(loop_table(d.get("loop_efficiency")))
     sc = res.get("scaling")
     if sc:
         out.append("\n## 5. Scaling (quick ViT dino_rd train step; memory = XLA's compiled peak)\n")
@@ -236,6 +227,40 @@ def report(res: dict) -> str:
     if res.get("plots"):
         out.append("\n" + "\n".join(f"![{Path(p).stem}]({Path(p).name})" for p in res["plots"]) + "\n")
     return "\n".join(out)
+
+
+def loop_table(le: dict | None) -> str:
+    """The training loop against its own step, one row per train.val_every ("" without the measurement)."""
+    if not le:
+        return ""
+    head = ("\nThe training loop (`ffjax.train.loop.train`: data pipeline, logs, checkpoints, validation) against "
+            "its own jitted step on one ready batch, over the same steps at the same batch. The loop's clock runs "
+            "from its warm-up steps to train()'s return; one-time startup (preprocessing, compiling) is outside "
+            "it. efficiency = pure step time / loop time; without evaluation = the same with the loop's "
+            "evaluation time (feature-norm refresh, validation, best checkpoint) taken out of the loop time. "
+            "Median of the rounds; every round in results.json.\n\n")
+    return head + md_table(
+        ["val_every (epochs)", "steps", "steps/epoch", "loop ms/step", "pure step ms", "efficiency",
+         "efficiency without evaluation", "evaluation share", "rounds: efficiency (without evaluation)",
+         "load"],
+        [[v["val_every"], v["steps"], v["steps_per_epoch"], _f(v["loop_ms"]), _f(v["pure_ms"]),
+          _f(v["efficiency"], 3), _f(v["efficiency_training"], 3), _f(v["eval_share"], 3),
+          ", ".join(f"{_f(x['efficiency'], 3)} ({_f(x['efficiency_training'], 3)})" for x in v.get("rounds", [v])),
+          "-".join(_f(x) for x in v.get("load1", []))]
+         for v in le.values()])
+
+
+def loop_report(res: dict) -> str:
+    """report.md of `experiments.bench --only loop`."""
+    m = res["machine"]
+    return "\n".join([
+        f"# ffjax benchmarks ({res['mode']})\n",
+        f"Commit `{res['commit']}`, {res['date_utc']}. Machine: {m.get('cpu_model')}, {m.get('cores')} cores; jax "
+        f"{m.get('jax')} (devices {', '.join(m.get('devices', []))}). Load average at start "
+        f"{res['load_start'][0]:.1f}, end {res['load_end'][0]:.1f}; steal "
+        f"{_f(100 * _g(res, '_env', 'loop', 'steal', default=float('nan')))}%.\n",
+        loop_table(_g(res, "data", "loop_efficiency")),
+    ])
 
 
 def plots(res: dict, out: Path) -> list[str]:
