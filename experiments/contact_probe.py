@@ -180,6 +180,7 @@ def plot(r: dict, path: Path) -> Path:
     axes[0].scatter([], [], marker="s", color="tab:red", label="unseen objects (Table I)")
     axes[0].legend(fontsize=8)
     fig.suptitle(f"Where Fz shows: contact size against image change per newton ({r['sensor']})")
+    common.stamp(fig, r["preset"], [], r["commit"])
     return save_png(fig, path)
 
 
@@ -195,4 +196,8 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

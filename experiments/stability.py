@@ -287,7 +287,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--factors", nargs="+", default=None, metavar="NAME", help="subset of the factors")
     args = ap.parse_args(argv)
     cfg = common.config_from_args(ap, args)
-    abl = Path(args.ablation or common.ROOT / "results" / f"ablation-{args.preset}").absolute()
+    abl = common.ablation_folder(ap, args.ablation, args.preset).absolute()
     saved = common.read_json(abl / "results.json") or {}
     if "per_beta" in saved:  # a loss-weight sweep's folder: its variants must be registered to load them
         register_from(saved)
@@ -600,4 +600,8 @@ def plot(results: dict, out: Path) -> list[Path]:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

@@ -393,7 +393,9 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser(prog="python -m ffjax.sim.dataset",
                                  description="Write every synthetic split (train/val/unseen/sensor/calib).")
-    ap.add_argument("--preset", default="quick", choices=configs.PRESETS)
+    ap.add_argument("--preset", default="quick", choices=configs.PRESETS,
+                    help="dataset size (default: quick). Measured on a 2-core CPU: smoke seconds; quick 11,300 "
+                         "presses in 4-6 min")
     ap.add_argument("--out", required=True)
     ap.add_argument("--force", action="store_true", help="delete a dataset made with another config")
     ap.add_argument("--workers", type=int, default=None, help="processes (default: CPU count, max 8)")

@@ -24,6 +24,12 @@ def _nobg(s):
     return np.clip((s.image.astype(np.int16) - s.background.astype(np.int16)) * 3 + 127, 0, 255).astype(np.uint8)
 
 
+def _label(name: str) -> str:
+    """'sphere_big' -> 'big sphere', 'wooden_spatula' -> 'wooden spatula': names a reader knows."""
+    words = name.split("_")
+    return " ".join(words[::-1]) if words[0] == "sphere" and len(words) == 2 else " ".join(words)
+
+
 def _grid(samples, titles, path, cols=5, dmax=None):
     """Three rows per band of `cols` samples: frame, background-subtracted (x3), depth."""
     bands = (len(samples) + cols - 1) // cols
@@ -60,7 +66,7 @@ def make(out: str, size=None) -> list[str]:
     paths = []
     names = list(INDENTERS) + list(UNSEEN_OBJECTS)
     samples = [press(n, m1, force=(0.0, 0.0, 8.0), yaw_deg=20.0, seed=i, size=size) for i, n in enumerate(names)]
-    paths.append(_grid(samples, names, os.path.join(out, "shapes.png")))
+    paths.append(_grid(samples, [_label(n) for n in names], os.path.join(out, "shapes.png")))
 
     sensors = [get_sensor(k) for k in SENSOR_NAMES]
     samples = [press("cross", s, force=(0.5, 0.0, 6.0), seed=i, size=size if s.name != "digit" else None)
@@ -70,12 +76,12 @@ def make(out: str, size=None) -> list[str]:
     fz = [0.0, 0.5, 1.5, 3.0, 5.0, 7.5, 10.0, 12.5, 15.0, 15.0]
     samples = [press("sphere_small", m1, force=(0.0, 0.0, f), seed=i, size=size) for i, f in enumerate(fz[:-1])]
     samples.append(press("triple_cylinder", m1, force=(0.0, 0.0, 15.0), seed=9, size=size))
-    paths.append(_grid(samples, ["sphere_small"] * 9 + ["triple_cylinder"], os.path.join(out, "force_ramp.png")))
+    paths.append(_grid(samples, ["small sphere"] * 9 + ["triple cylinder"], os.path.join(out, "force_ramp.png")))
 
     fx = [-4.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 4.0]
     samples = [press("sphere_big", m1, force=(f, 0.0, 3.0), seed=i, size=size) for i, f in enumerate(fx)]
     samples.append(press("sphere_big", get_sensor("mini-1", 3), force=(2.0, 1.0, 3.0), seed=10, size=size))
-    paths.append(_grid(samples, ["sphere_big Fz=3"] * 9 + ["gel3 markers"], os.path.join(out, "shear_sweep.png")))
+    paths.append(_grid(samples, ["big sphere, Fz 3 N"] * 9 + ["gel 3 (markers)"], os.path.join(out, "shear_sweep.png")))
     return paths
 
 
@@ -86,9 +92,16 @@ def main(argv=None):
     ap.add_argument("--size", type=int, nargs=2, default=None, metavar=("H", "W"),
                     help="render size (default native)")
     args = ap.parse_args(argv)
+    from ffjax import cli
+
+    cli.check_out(ap, args.out)
     for p in make(args.out, tuple(args.size) if args.size else None):
         print(p)
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

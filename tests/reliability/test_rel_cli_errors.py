@@ -29,6 +29,9 @@ ROOT = Path(__file__).resolve().parents[2]
      "--ablation {tmp}/MISSING: no such folder"),
     (["experiments.downstream", "--preset", "smoke", "--checkpoint", "{tmp}/MISSING", "--out", "{tmp}/down"], 2,
      "MISSING/model.json not found"),
+    (["experiments.stability", "--preset", "smoke", "--ablation", "{tmp}/MISSING", "--out", "{tmp}/st"], 2,
+     "--ablation {tmp}/MISSING: no such folder"),
+    (["ffjax.sim.gallery", "--out", "/dev/null/g"], 2, "--out: output folder /dev/null/g"),
 ])
 def test_bad_arguments_are_one_line_errors(tmp_path, cmd, rc, fragment):
     env = {**os.environ, "FFJAX_DEBUG": ""}
