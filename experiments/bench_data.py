@@ -110,13 +110,18 @@ class _PureStep:
         self.batch = jax.device_put(next(iter(data.make_dataset(source, stats, size, batch, 0))))
         self.run(warmup)
 
-    def run(self, steps: int) -> float:
-        """Seconds for `steps` steps, dispatch to the last result."""
-        t0 = time.perf_counter()
+    def run(self, steps: int) -> np.ndarray:
+        """(wall s, process CPU s) for `steps` steps, dispatch to the last result."""
+        t0 = _clocks()
         for _ in range(steps):
             self.state, m = train.train_step(self.state, self.batch)
         jax.block_until_ready(m["loss"])
-        return time.perf_counter() - t0
+        return _clocks() - t0
+
+
+def _clocks() -> np.ndarray:
+    """Wall and process CPU time (all threads: XLA's, orbax's async writer, the loop's own)."""
+    return np.array([time.perf_counter(), time.process_time()])
 
 
 def loop_efficiency(cfg: dict, method: str, source, size: int, batch: int, n_train: int, n_val: int,
@@ -126,32 +131,35 @@ def loop_efficiency(cfg: dict, method: str, source, size: int, batch: int, n_tra
     The loop trains `epochs` epochs of `n_train` records (validation on `n_val`, checkpoints, logs, the
     data pipeline, all as configured in cfg). Its clock starts after `warmup` steps and stops when train()
     returns: everything the loop does in between is in it (final validation and checkpoint waits
-    included); the one-time work before step 1 (preprocessing the splits, compiling the step and the
-    evaluation and checksum programs) is not, and is reported as `startup_s`. The pure step runs the same
-    number of steps on one ready device batch, half just before the loop and half just after, so a change
-    of machine load during the measurement weighs on both sides alike.
-    `efficiency` = pure s / loop s. `efficiency_training` = pure s / (loop s - eval_s): the loop's training
-    steps alone, with its evaluation (feature-norm refresh + validation + the best checkpoint, reported as
-    `eval_s` and `eval_share`) left out, as train.val_every sets that cost, not the loop's overhead."""
+    included); the one-time work before (preprocessing the splits, compiling the step and the evaluation
+    and checksum programs, the warm-up steps) is not, and is reported as `startup_s`. The pure step runs the
+    same number of steps on one ready device batch, half just before the loop and half just after, so a
+    change of machine load during the measurement weighs on both sides alike.
+    `efficiency` = pure s / loop s (wall). `efficiency_training` = pure s / (loop s - eval_s): the loop's
+    training steps alone, its evaluation (feature-norm refresh + validation + the best checkpoint, reported
+    as `eval_s` and `eval_share`) left out, as train.val_every sets that cost, not the loop's overhead.
+    `efficiency_cpu` = pure / loop in process CPU seconds (all threads): work, not waiting, so it would miss
+    a loop stalled on I/O, but other processes' load moves it far less than the wall figures; a check on
+    them, not a replacement."""
     cfg = {**cfg, "train": {**cfg["train"], "batch_size": batch, "epochs": epochs}}
     cfg["data"] = {**cfg["data"], "input_size": size}
     tr, va = Repeated(source, n_train), Repeated(source, n_val)
     steps = epochs * (n_train // batch) - warmup
     pure = _PureStep(cfg, method, tr, size, batch, warmup)
     load = [os.getloadavg()[0]]
-    pure_s = pure.run(steps // 2)
+    pure_t = pure.run(steps // 2)
     clock = {}
 
     def cb(done, state):
         if done == warmup:
             jax.block_until_ready(state.params)
-            clock["t0"] = time.perf_counter()
+            clock["t0"] = _clocks()
 
     with tempfile.TemporaryDirectory() as tmp:
         t_call = time.perf_counter()
         summary = train.train(cfg, method, (tr, va), Path(tmp) / "run", callback=cb, progress=False)
-        loop_s = time.perf_counter() - clock["t0"]
-    pure_s += pure.run(steps - steps // 2)
+        loop_s, loop_cpu = (float(x) for x in _clocks() - clock["t0"])
+    pure_s, pure_cpu = (float(x) for x in pure_t + pure.run(steps - steps // 2))
     load.append(os.getloadavg()[0])
     assert summary["steps"] - warmup == steps
     eval_s = summary["eval_time_s"]
@@ -159,6 +167,6 @@ def loop_efficiency(cfg: dict, method: str, source, size: int, batch: int, n_tra
             "steps_per_epoch": summary["steps_per_epoch"], "val_every": cfg["train"].get("val_every", 1),
             "ckpt_every": cfg["train"]["ckpt_every"], "n_train": n_train, "n_val": n_val,
             "loop_ms": loop_s / steps * 1e3, "pure_ms": pure_s / steps * 1e3, "eval_s": eval_s,
-            "startup_s": clock["t0"] - t_call, "efficiency": pure_s / loop_s,
-            "efficiency_training": pure_s / max(loop_s - eval_s, 1e-9), "eval_share": eval_s / loop_s,
-            "load1": load}
+            "startup_s": float(clock["t0"][0] - t_call), "efficiency": float(pure_s / loop_s),
+            "efficiency_training": float(pure_s / max(loop_s - eval_s, 1e-9)), "eval_share": eval_s / loop_s,
+            "efficiency_cpu": float(pure_cpu / loop_cpu), "load1": load}
