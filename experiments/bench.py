@@ -304,28 +304,70 @@ def run_loop(plan: dict, src, size: int, batch: int) -> dict:
     return out
 
 
-def run_loop_only(mode: str, out: str | Path | None = None, log=print) -> dict:
-    """Only the loop-efficiency measurement of `mode` (`--only loop`): its own results.json and report.md."""
+def bf16_methods(plan: dict, src) -> dict:
+    """bfloat16 against float32 for every registry method (and dino_rd with the paper's decoder): the train
+    step's speed on the main case (timed interleaved, bench_jax.paired_ms) and the validation loss after the
+    same short run from the same init (bench_jax.bf16_accuracy, the plan's bf16_acc sizes)."""
+    from ffjax import data, registry
+
+    case, acc = plan["cases"]["quick_vit"], plan["bf16_acc"]
+    acfg = bj.case_cfg(acc["preset"])
+    asize = acc.get("size", acfg["data"]["input_size"])
+    arrays = data.load_arrays(src, data.Stats.compute(src, acfg["data"], asize), asize)
+    n_val = max(acc["batch"], len(arrays["force"]) // 5)
+    val = {k: v[:n_val] for k, v in arrays.items()}
+    tr = {k: v[n_val:] for k, v in arrays.items()}
+    names = plan.get("bf16_methods") or registry.names()
+    variants = [(n, n, "tokens") for n in names]
+    if "dino_rd" in names:
+        variants.append(("dino_rd_paper_decoder", "dino_rd", "paper"))
+    out = {}
+    for label, method, decoder in variants:
+        over = {**case.get("overrides", {}), "model.decoder.kind": decoder}
+        cfg = bj.case_cfg(case["preset"], over)
+        speed = bj.paired_ms({d: bj.with_dtype(cfg, d) for d in ("float32", "bfloat16")}, method, case["batch"],
+                             case["size"])
+        a = bj.bf16_accuracy(bj.case_cfg(acc["preset"], {"model.decoder.kind": decoder}), method, tr, val,
+                             acc["steps"], acc["batch"])
+        a.update(preset=acc["preset"], input_size=asize)
+        out[label] = {"speed": speed, "accuracy": a, "speedup_bf16": speed["bfloat16"]["speed_over_float32"],
+                      "speed_case": {"preset": case["preset"], "batch": case["batch"], "size": case["size"]},
+                      "val_loss_ratio_bf16_over_f32": a["val_loss_ratio_bf16_over_f32"],
+                      "val_force_l1_ratio_bf16_over_f32": a["val_force_l1_ratio_bf16_over_f32"]}
+    return out
+
+
+ONLY = {"loop": "the training loop against its own step", "bf16": "bfloat16 against float32, every method"}
+
+
+def run_only(part: str, mode: str | dict, out: str | Path | None = None, log=print) -> dict:
+    """One part of `mode` (a PLANS name or a plan dict with a "name") on its own (`--only loop|bf16`), on a
+    split the simulator renders: results.json and report.md in results/bench-<part>-<mode>."""
     from experiments import bench_data as bd
     from experiments import bench_report
     from ffjax import data
 
-    plan, t_start = PLANS[mode], time.perf_counter()
-    out = Path(out or ROOT / "results" / f"bench-loop-{mode}").absolute()
+    plan, t_start = (PLANS[mode] if isinstance(mode, str) else mode), time.perf_counter()
+    mode = mode if isinstance(mode, str) else plan.get("name", "custom")
+    out = Path(out or ROOT / "results" / f"bench-{part}-{mode}").absolute()
     out.mkdir(parents=True, exist_ok=True)
-    res: dict = {"experiment": "bench", "mode": f"{mode}, loop only", "commit": git_commit(),
+    res: dict = {"experiment": "bench", "mode": f"{mode}, {part} only", "commit": git_commit(),
                  "date_utc": datetime.now(UTC).isoformat(timespec="seconds"), "machine": machine(),
                  "load_start": list(os.getloadavg()), "data": {}}
     case = plan["cases"]["quick_vit"]
-    with Section(res, "loop", log), tempfile.TemporaryDirectory() as tmp:
+    with Section(res, part, log), tempfile.TemporaryDirectory() as tmp:
         cfg = bj.case_cfg(case["preset"])
         cfg["data"]["render_size"] = tuple(plan["sim"]["sizes"]["64x64"])
         folder, _ = bd.make_split(Path(tmp), cfg, "train", 0, plan["data"]["per_shape"])
-        res["data"]["loop_efficiency"] = run_loop(plan, data.open_split(folder), case["size"], case["batch"])
+        src = data.open_split(folder)
+        if part == "loop":
+            res["data"]["loop_efficiency"] = run_loop(plan, src, case["size"], case["batch"])
+        else:
+            res["bf16_methods"] = bf16_methods(plan, src)
     res["ratios"] = ratios(res)
     res["wall_s"], res["load_end"] = time.perf_counter() - t_start, list(os.getloadavg())
     write_json(out / "results.json", res)
-    write_text(out / "report.md", bench_report.loop_report(res))
+    write_text(out / "report.md", bench_report.only_report(res))
     log(f"[bench] wrote {out}/results.json and report.md in {res['wall_s']:.0f}s")
     return res
 
@@ -450,8 +492,9 @@ def main(argv=None):
     ap.add_argument("--torch-python", default=None,
                     help="python with torch for the PyTorch side when torch is not importable here")
     ap.add_argument("--skip", action="append", default=[], choices=("profile", "data", "scaling", "dp"))
-    ap.add_argument("--only", choices=("loop",), default=None,
-                    help="loop: only the training loop against its own step (results/bench-loop-<mode>)")
+    ap.add_argument("--only", choices=tuple(ONLY), default=None,
+                    help="one part alone, in results/bench-<part>-<mode>: "
+                         + "; ".join(f"{k}: {v}" for k, v in ONLY.items()))
     ap.add_argument("--device", choices=("auto", "cpu", "gpu"), default="auto",
                     help="where jax and the PyTorch side run (auto: a GPU when jax has one)")
     ap.add_argument("--torch-compile", action=argparse.BooleanOptionalAction, default=None,
@@ -459,8 +502,8 @@ def main(argv=None):
     a = ap.parse_args(argv)
     select_device(a.device)
     mode = "smoke" if a.smoke else "quick" if a.quick else "full"
-    if a.only == "loop":
-        run_loop_only(mode, a.out)
+    if a.only:
+        run_only(a.only, mode, a.out)
         return
     run(mode, a.out, a.torch_python, skip=tuple(a.skip), torch_compile=a.torch_compile)
 

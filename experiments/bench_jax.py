@@ -347,6 +347,33 @@ def bf16_speed(cfg: dict, method: str, batch: int, size: int, warmup=2, steps=3,
     return res
 
 
+def paired_ms(cfgs: dict, method: str, batch: int, size: int, steps: int = 3, rounds: int = 5) -> dict:
+    """ms per train step (wall and process CPU) of one case under each named cfg, timed in alternating
+    blocks of `steps` steps (order reversed every round) so machine load weighs on all alike; medians over
+    rounds, and the median of the per-round ratios of each cfg to the first."""
+    b = jax.device_put(fake_batch(batch, size))
+    states = {}
+    for name, cfg in cfgs.items():
+        state = train.init_state(cfg, registry.get(method), jax.random.PRNGKey(0), size)
+        for _ in range(2):  # compile, then one warm step
+            state, m = train.train_step(state, b)
+        jax.block_until_ready(m["loss"])
+        states[name] = state
+    per = {name: [] for name in cfgs}
+    for r in range(rounds):
+        for name in (list(cfgs) if r % 2 == 0 else list(cfgs)[::-1]):
+            t0 = np.array([time.perf_counter(), time.process_time()])
+            for _ in range(steps):
+                states[name], m = train.train_step(states[name], b)
+            jax.block_until_ready(m["loss"])
+            per[name].append((np.array([time.perf_counter(), time.process_time()]) - t0) / steps * 1e3)
+    first = list(cfgs)[0]
+    return {name: {"ms": float(np.median([x[0] for x in v])), "cpu_ms": float(np.median([x[1] for x in v])),
+                   "ms_rounds": [float(x[0]) for x in v],
+                   f"speed_over_{first}": float(np.median([a[0] / x[0] for a, x in zip(per[first], v)]))}
+            for name, v in per.items()}
+
+
 def bf16_accuracy(cfg: dict, method: str, arrays: dict, val: dict, steps: int, batch: int) -> dict:
     """Train `steps` steps from the same init on the same batch order in float32 and bfloat16 compute;
     compare the training loss curve's tail and the float32-evaluated validation loss / force L1."""

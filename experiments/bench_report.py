@@ -63,6 +63,9 @@ def collect_ratios(res: dict) -> dict:
     r["bf16_speedup"] = _g(f, "bf16_speed", "speedup_bf16")
     r["bf16_val_loss_over_f32"] = _g(f, "bf16_accuracy", "val_loss_ratio_bf16_over_f32")
     r["bf16_val_force_l1_over_f32"] = _g(f, "bf16_accuracy", "val_force_l1_ratio_bf16_over_f32")
+    for label, v in (res.get("bf16_methods") or {}).items():
+        for k in ("speedup_bf16", "val_loss_ratio_bf16_over_f32", "val_force_l1_ratio_bf16_over_f32"):
+            r[f"{k}_{label}"] = v.get(k)
     r["dp8_over_1dev_speed"] = _g(res, "dp", "speedup_all_over_one")
     for axis, pts in (res.get("scaling") or {}).items():
         if pts:
@@ -253,16 +256,39 @@ def loop_table(le: dict | None) -> str:
          for v in le.values()])
 
 
-def loop_report(res: dict) -> str:
-    """report.md of `experiments.bench --only loop`."""
+def bf16_table(bm: dict | None) -> str:
+    """bfloat16 against float32 per method ("" without the measurement)."""
+    if not bm:
+        return ""
+    rows = []
+    for label, v in bm.items():
+        sp, a = v["speed"], v["accuracy"]
+        rows.append([label, _f(sp["float32"]["ms"]), _f(sp["bfloat16"]["ms"]), _f(v["speedup_bf16"], 2),
+                     _f(a["float32"]["val_loss"], 4), _f(a["bfloat16"]["val_loss"], 4),
+                     _f(v["val_loss_ratio_bf16_over_f32"], 3), _f(v["val_force_l1_ratio_bf16_over_f32"], 3)])
+    v0 = next(iter(bm.values()))
+    a0, c0 = v0["accuracy"], v0["speed_case"]
+    return (f"\nbfloat16 compute (float32 master weights) against float32. Speed: each method's train step, "
+            f"{c0['preset']} model, batch {c0['batch']} at {c0['size']} px, the two dtypes timed in "
+            f"{len(v0['speed']['float32']['ms_rounds'])} alternating rounds (median; > 1 = bf16 faster). "
+            f"Accuracy: the same short run from the same init and batch order in each dtype ({a0['steps']} "
+            f"steps, batch {a0['batch']}, {a0['preset']} model at {a0['input_size']} px), validated in "
+            "float32.\n\n" + md_table(
+                ["method", "float32 ms/step", "bfloat16 ms/step", "speed bf16/f32", "val loss f32", "val loss bf16",
+                 "val loss bf16/f32", "val force L1 bf16/f32"], rows))
+
+
+def only_report(res: dict) -> str:
+    """report.md of `experiments.bench --only <part>`."""
     m = res["machine"]
+    steal = next(iter(res.get("_env", {}).values()), {}).get("steal", float("nan"))
     return "\n".join([
         f"# ffjax benchmarks ({res['mode']})\n",
         f"Commit `{res['commit']}`, {res['date_utc']}. Machine: {m.get('cpu_model')}, {m.get('cores')} cores; jax "
         f"{m.get('jax')} (devices {', '.join(m.get('devices', []))}). Load average at start "
-        f"{res['load_start'][0]:.1f}, end {res['load_end'][0]:.1f}; steal "
-        f"{_f(100 * _g(res, '_env', 'loop', 'steal', default=float('nan')))}%.\n",
+        f"{res['load_start'][0]:.1f}, end {res['load_end'][0]:.1f}; steal {_f(100 * steal)}%.\n",
         loop_table(_g(res, "data", "loop_efficiency")),
+        bf16_table(res.get("bf16_methods")),
     ])
 
 

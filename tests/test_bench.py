@@ -151,3 +151,16 @@ def test_torch_side_same_params(results):
         t = res["models"][case]["train"]
         assert t["torch"]["params"] == t["ffjax"]["params"], case
     assert res["ratios"]["train_quick_vit_ffjax_over_torch"] > 0
+
+
+def test_only_parts_write_their_own_report(tmp_path):
+    """`--only loop` and `--only bf16` at a tiny size: their tables, ratios and every round recorded."""
+    plan = {**TINY, "loop": {**TINY["loop"], "val_every": (2,), "rounds": 2},
+            "bf16_acc": {"preset": "smoke", "steps": 3, "batch": 4}, "bf16_methods": ("resnet_rd",)}
+    res = bench.run_only("loop", plan, tmp_path / "loop", log=lambda *_: None)
+    le = res["data"]["loop_efficiency"]["val_every_2"]
+    assert len(le["rounds"]) == 2 and le["efficiency_cpu"] > 0 and le["startup_s"] > 0
+    assert "efficiency without evaluation" in (tmp_path / "loop" / "report.md").read_text()
+    res = bench.run_only("bf16", plan, tmp_path / "bf16", log=lambda *_: None)
+    assert set(res["bf16_methods"]) == {"resnet_rd"} and res["ratios"]["speedup_bf16_resnet_rd"] > 0
+    assert "val loss bf16/f32" in (tmp_path / "bf16" / "report.md").read_text()
