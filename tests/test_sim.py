@@ -169,3 +169,28 @@ def test_press_batch_matches_press():
     assert out["image"].shape == (2,) + SIZE + (3,)
     assert np.array_equal(out["image"][1], one.image) and np.array_equal(out["depth"][1], one.depth)
     assert np.array_equal(out["background"], one.background) and len(out["meta"]) == 2
+
+
+def test_the_pigment_pattern_belongs_to_the_gel():
+    """A gel moved to another unit (Table II's S2 G1) brings its own speckle; another gel has another one."""
+    from ffjax.sim import optics
+
+    import cv2
+
+    def speckle(key):  # the fine part of the pigment (how uneven the pad looks is the unit's own)
+        s = sim.get_sensor(key)
+        a = (optics.tables(s, (96, 128)).albedo / np.asarray(s.albedo, np.float32))[..., 0]
+        return (a - cv2.GaussianBlur(a, (0, 0), 3.0)).ravel()
+
+    assert np.corrcoef(speckle("mini-1-gel1"), speckle("mini-2-gel1"))[0, 1] > 0.95
+    assert abs(np.corrcoef(speckle("mini-1-gel1"), speckle("mini-1-gel2"))[0, 1]) < 0.2
+
+
+def test_the_free_surface_is_carried_with_the_gel():
+    """Sheared, the gel around a sharp body trails it: behind the motion the unsheared profile is found further
+    out, so the rim region changes, while the surface the body holds does not."""
+    sensor = sim.get_sensor("mini-1")
+    a = sim.press("cone", sensor, (0.0, 0.0, 5.0), size=(48, 64), noise=False)
+    b = sim.press("cone", sensor, (1.0, 0.0, 5.0), size=(48, 64), noise=False)
+    assert abs(float(a.depth.max()) - float(b.depth.max())) < 0.02 * float(a.depth.max())
+    assert np.abs(b.depth - a.depth).max() > 0.01  # mm: the rim moved

@@ -77,8 +77,9 @@ def tables(sensor: Sensor, size: tuple[int, int]) -> Tables:
     fall = np.stack(fall).astype(np.float32)
     colour = np.stack(colour).astype(np.float32)
 
-    # pigment: fine speckle of the gel's particles + low-frequency unevenness of the cast + markers
-    rng = np.random.default_rng(_seed("gel", sensor.key))
+    # pigment: fine speckle of the gel's particles + low-frequency unevenness of the cast + markers. They belong
+    # to the gel pad, not the camera unit: a gel moved to another unit (Table II) brings its own pattern
+    rng = np.random.default_rng(_seed("gel", sensor.gel.texture_seed))
     nh, nw = sensor.native_size
     speck = cv2.GaussianBlur(rng.standard_normal((nh, nw)).astype(np.float32), (0, 0), 2.0)
     speck /= speck.std() + 1e-9

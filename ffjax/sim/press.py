@@ -138,9 +138,10 @@ def _press(shape: Shape, sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, s
     disp_px = None
     if sh.field is not None:
         to_render = lambda a: cv2.resize(a, (size[1], size[0]), interpolation=cv2.INTER_LINEAR)  # noqa: E731
+        disp_px = to_render(sh.field) / np.float32(mpp)
+        depth = _carried(depth, disp_px, (sh.disp_mm / mpp).astype(np.float32))
         bulge = mechanics.shear_bulge(sh)
         depth = depth + (to_render(bulge) if np.ndim(bulge) else bulge)
-        disp_px = to_render(sh.field) / np.float32(mpp)
     # the pigment skin cannot bend sharply: soften kinks at the contact edge (~0.1 mm)
     depth = mechanics.smooth(depth.astype(np.float32), SKIN_MM / mpp)
     image = optics.render(sensor, size, depth, disp_px, seed if noise else None)
@@ -154,6 +155,18 @@ def _press(shape: Shape, sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, s
         "mm_per_px": float(mpp), "seed": int(seed), "size": size,
     }
     return Sample(image, None, depth, applied, meta)
+
+
+def _carried(depth: np.ndarray, disp_px: np.ndarray, body_px: np.ndarray) -> np.ndarray:
+    """The surface shape carried by the gel's sideways motion. `depth` is the unsheared solution around the body
+    where it is now; the body has moved by body_px from where it pressed, and the gel at each point by
+    disp_px (all of body_px on the contact, less away from it), so the free surface around the contact trails
+    behind: the height at x is the unsheared one at x + (body_px - disp_px)."""
+    H, W = depth.shape
+    cols, rows = np.meshgrid(np.arange(W, dtype=np.float32), np.arange(H, dtype=np.float32))
+    lag = body_px[None, None, :] - disp_px
+    return cv2.remap(depth.astype(np.float32), cols + lag[..., 0], rows + lag[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
 
 
 def press_batch(shape: Shape | str, sensor: Sensor | str, forces, x_mm=None, y_mm=None, yaw_deg=None,
