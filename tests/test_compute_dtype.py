@@ -42,17 +42,18 @@ def test_bf16_step_runs_for_every_method_and_keeps_float32_state(name, decoder):
     assert ev["force"].dtype == np.float32
 
 
-def _short_run(cfg, steps=30):
-    state = train.init_state(cfg, registry.get("dino_rd"), jax.random.PRNGKey(0))
+def _short_run(cfg, name, steps=30):
+    state = train.init_state(cfg, registry.get(name), jax.random.PRNGKey(0))
     for i in range(steps):
         state, _ = train.train_step(state, fixed_batch(cfg, seed=i % 4))
     val = {**fixed_batch(cfg, seed=99), "mask": np.ones(8, np.float32)}
     return float(train.eval_step(state, val)["loss"])
 
 
-def test_bf16_validation_loss_within_tolerance_of_float32():
-    f32 = _short_run(configs.get("smoke"))
-    bf16 = _short_run(_bf16_cfg())
+@pytest.mark.parametrize("name", registry.names())
+def test_bf16_validation_loss_within_tolerance_of_float32(name):
+    f32 = _short_run(configs.get("smoke"), name)
+    bf16 = _short_run(_bf16_cfg(), name)
     assert abs(bf16 - f32) <= VAL_LOSS_TOLERANCE * f32, (bf16, f32)
 
 
