@@ -33,6 +33,7 @@ N_LEVELS = {"smoke": 2}  # other presets: every level of each factor
 STREAM = 1000  # sampling stream / render seed block no dataset split uses (held out)
 SHEAR_N = 1.0  # |F_t| of the shear-angle sets, N
 FLAT_SIDES_MM = (3.0, 5.0, 7.0, 10.0, 14.0, 18.0)
+KNURL_MM = (0.0, 0.015, 0.03, 0.06)  # the cube's knurl is 0.03 mm (0.12 mm from trough to crest)
 SPHERE_RADII_MM = (4.0, 10.0, 20.0, 30.0, 40.0)
 BAR_LENGTHS_MM = (0.0, 4.0, 8.0, 12.0, 20.0, 30.0)
 BAR_RADIUS_MM = 4.0  # the small sphere's: length 0 is that training indenter
@@ -70,6 +71,10 @@ def factors(cfg: dict) -> tuple[Factor, ...]:
         Factor("flat_size", "flat face side (mm)", FLAT_SIDES_MM, FLAT_SIDES_MM.index(14.0),
                "a square flat punch made like the cube indenter (14 mm, the largest flat face in training), "
                "its side from 3 to 18 mm (the pad sees 20.3 x 15.2 mm), posed and loaded as the cube is"),
+        Factor("face_texture", "knurl amplitude of a 14 mm flat face (mm)", KNURL_MM, KNURL_MM.index(0.03),
+               "the cube's 14 mm face with its diamond knurl (0.7 mm pitch) made shallower or deeper, from smooth "
+               "(0) to twice the cube's (0.06): a textured face touches the gel on its crests only, a smooth one "
+               "over its whole area; posed and loaded as the cube is"),
         Factor("sphere_radius", "sphere radius (mm)", SPHERE_RADII_MM, SPHERE_RADII_MM.index(40.0),
                "a smooth sphere like the sphere indenters (the big sphere, 40 mm, is the flattest curved body in "
                "training), its radius from 4 to 40 mm (fruit are 20-37 mm), posed and loaded as the big sphere is"),
@@ -134,6 +139,10 @@ def presses(cfg: dict, f: Factor, li: int, n: int, sensor) -> dict:
         spec = dataset.SplitSpec("stability", SENSOR, ("cube",), n, STREAM)
         p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
         return {"shapes": (flat_punch(level),), **p}
+    if f.name == "face_texture":  # the cube's poses and loads, its face's knurl changed
+        spec = dataset.SplitSpec("stability", SENSOR, ("cube",), n, STREAM)
+        p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
+        return {"shapes": (flat_punch(14.0, level),), **p}
     if f.name == "sphere_radius":  # the big sphere's poses and loads, pressed with a sphere of another radius
         spec = dataset.SplitSpec("stability", SENSOR, (dataset.CALIB_SHAPE,), n, STREAM)
         p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
@@ -403,6 +412,9 @@ MECHANISM = {
     "flat_size": "a flat face shows its load only along its outline (inside, the pressed gel stays flat and "
                  "shades like the background), and faces smaller or larger than the training cube make contacts and "
                  "stiffnesses no training press had",
+    "face_texture": "a body in stick holds the gel across its whole face whether it touches through knurl crests or "
+                    "everywhere, so the shear stiffness is the face's; a model that learned the load per unit of "
+                    "touching area from one texture misreads another",
     "sphere_radius": "at a given load a flatter body makes a wider, shallower contact, and in a bonded layer the "
                      "stiffness grows steeply with the contact's width against the thickness, so spheres flatter "
                      "than the training bodies press contacts and depth-load relations no training press had",

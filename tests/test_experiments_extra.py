@@ -87,7 +87,7 @@ def test_stability_writes_files(abl):
         assert (out / name).stat().st_size > 0, name
     saved = json.loads((out / "results.json").read_text())
     assert set(saved["factors"]) == {"noise", "illumination", "edge", "force", "shear_angle", "drift", "flat_size",
-                                      "sphere_radius", "elongation", "tilt_shear"}
+                                      "face_texture", "sphere_radius", "elongation", "tilt_shear"}
     for e in saved["factors"].values():
         v = e["methods"][METHOD]
         assert len(e["levels"]) == 2 and len(v["nl1"]) == 2 and all(n > 0 for n in e["n"])

@@ -67,3 +67,13 @@ def test_sphere_builder_is_the_big_sphere_at_40mm():
     assert sphere(30.0).height.min() == 0 and sphere(30.0).name == "sphere_30mm"
     with pytest.raises(ValueError, match="radius_mm"):
         sphere(0.0)
+
+
+def test_flat_punch_knurl():
+    from ffjax.sim.shapes import flat_punch
+
+    smooth, cube, deep = (flat_punch(14.0, k).height for k in (0.0, 0.03, 0.06))
+    face = smooth == 0  # inside the rounded rim
+    assert 0.1 < np.ptp(cube[face]) < 0.13 and 0.2 < np.ptp(deep[face]) < 0.25  # crest to trough: 4x the amplitude
+    with pytest.raises(ValueError, match="knurl_mm"):
+        flat_punch(14.0, -0.1)

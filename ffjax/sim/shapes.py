@@ -188,15 +188,19 @@ def cube():  # 14 mm square face, knurled: a flat contact across most of the pad
 
 
 @functools.lru_cache(maxsize=32)  # one Shape per size: press's per-shape caches then hit
-def flat_punch(side_mm: float) -> Shape:
-    """A knurled square flat punch like the cube indenter (0.5 mm rounded rim) with any face size: the
-    contact-size factor of experiments.stability (the cube, 14 mm, is the largest flat face in training)."""
+def flat_punch(side_mm: float, knurl_mm: float = 0.03) -> Shape:
+    """A knurled square flat punch like the cube indenter (0.5 mm rounded rim, 0.7 mm diamond knurl of
+    amplitude knurl_mm; 0 = smooth) with any face size: the contact-size and face-texture factors of
+    experiments.stability (the cube, 14 mm, knurl 0.03 mm, is the largest flat face in training)."""
     if not 0 < side_mm < 2 * _EXTENT_MM:
         raise ValueError(f"side_mm must be in (0, {2 * _EXTENT_MM}) mm, got {side_mm}")
+    if not 0 <= knurl_mm <= 0.5:
+        raise ValueError(f"knurl_mm must be in [0, 0.5] mm, got {knurl_mm}")
     X, Y = _grid()
     d = np.minimum(side_mm / 2 - np.abs(X), side_mm / 2 - np.abs(Y))
-    knurl = 0.03 * (2 + np.sin(2 * np.pi * (X + Y) / 0.7) + np.sin(2 * np.pi * (X - Y) / 0.7))
-    return Shape(_rounded(d, 0.5) + knurl, MAP_MM_PER_PX, name=f"flat_punch_{side_mm:g}mm", kind="user")
+    knurl = knurl_mm * (2 + np.sin(2 * np.pi * (X + Y) / 0.7) + np.sin(2 * np.pi * (X - Y) / 0.7))
+    name = f"flat_punch_{side_mm:g}mm" + ("" if knurl_mm == 0.03 else f"_knurl{knurl_mm:g}")
+    return Shape(_rounded(d, 0.5) + knurl, MAP_MM_PER_PX, name=name, kind="user")
 
 
 @functools.lru_cache(maxsize=32)  # one Shape per size: press's per-shape caches then hit
