@@ -6,9 +6,9 @@
    the training sensor, put through the model's preprocessing at the training size: the image energy of a
    +1 N change of Fz and of a 1 N shear (mean of +-x, +-y), the contact area (and its share of the pad), and,
    for scale, the energy of camera noise between two frames of one press.
-2. Read-out (with --runs): for each run, on the dataset's unseen-object splits and its validation split (per
-   training indenter), the slope of predicted on true force per axis (1 = the full force read; 0 = none),
-   the Fz offset and the MAE per axis.
+2. Read-out (with --runs): for each run, on the dataset's unseen-object splits, its validation split (per
+   training indenter) and its Table II splits (per unit x gel), the slope of predicted on true force per axis
+   (1 = the full force read; 0 = none), the Fz offset and the MAE per axis.
 Writes DIR/results.json, DIR/object_probe.md and DIR/object_probe.png.
 """
 
@@ -73,6 +73,8 @@ def readout(run, data: Path) -> dict:
     model = inference.load(run)
     res = {}
     splits = [(p.name, p) for p in sorted((data / "unseen").iterdir()) if p.is_dir()] + [("val", data / "val")]
+    if (data / "sensor").is_dir():  # Table II: the indenters on every unit x gel (and the DIGIT)
+        splits += [(f"sensor/{p.name}", p) for p in sorted((data / "sensor").iterdir()) if p.is_dir()]
     for name, folder in splits:
         shards = [np.load(f) for f in sorted(folder.glob("shard_*.npz"))]
         images = np.concatenate([z["image"] for z in shards])
@@ -118,6 +120,15 @@ def markdown(res: dict) -> str:
             row += (f" {f['slope'][0]:.2f} / {f['slope'][1]:.2f} / {f['slope'][2]:.2f}, {f['fz_offset_n']:+.2f} |"
                     if f else " |")
         lines.append(row)
+    sensors = sorted({k for r in runs for k in res["readout"][r] if k.startswith("sensor/")})
+    if sensors:
+        lines += ["", f"How much of each axis is read on every unit x gel (Table II's presses; training: {SENSOR}):",
+                  "", "| sensor |" + "".join(f" {run_label(r)}: slope Fx / Fy / Fz |" for r in runs),
+                  "|---|" + "---|" * len(runs)]
+        for k in sensors:
+            cells = [res["readout"][r].get(k) for r in runs]
+            lines.append(f"| {k[7:]} |" + "".join(f" {f['slope'][0]:.2f} / {f['slope'][1]:.2f} / {f['slope'][2]:.2f} |"
+                                                  if f else " |" for f in cells))
     return "\n".join(lines) + "\n"
 
 
