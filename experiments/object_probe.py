@@ -73,8 +73,10 @@ def readout(run, data: Path) -> dict:
     model = inference.load(run)
     res = {}
     splits = [(p.name, p) for p in sorted((data / "unseen").iterdir()) if p.is_dir()] + [("val", data / "val")]
-    if (data / "sensor").is_dir():  # Table II: the indenters on every unit x gel (and the DIGIT)
-        splits += [(f"sensor/{p.name}", p) for p in sorted((data / "sensor").iterdir()) if p.is_dir()]
+    from ffjax.sim.dataset import MINI_KEYS
+
+    # Table II: the indenters on every GelSight unit x gel (the DIGIT's portrait frames need a calibrated model)
+    splits += [(f"sensor/{k}", data / "sensor" / k) for k in MINI_KEYS if (data / "sensor" / k).is_dir()]
     for name, folder in splits:
         shards = [np.load(f) for f in sorted(folder.glob("shard_*.npz"))]
         images = np.concatenate([z["image"] for z in shards])
