@@ -28,7 +28,8 @@ CALIBRATIONS = (("mini-2-gel1", "last"), ("mini-3-gel2", "last"), ("digit", "reg
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "~30 min", "full": "52 min (3 seeds, before issue 13's simulator)"})
+    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "~30 min",
+                                                                           "full": "52 min (3 seeds, before issue 13)"})
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
                     help=f"registry names (default: the paper set {', '.join(registry.PAPER_SET)})")
     ap.add_argument("--seeds", type=int, default=None, help="seeds per method (default: 1, 3 at full)")

@@ -173,9 +173,9 @@ def test_press_batch_matches_press():
 
 def test_the_pigment_pattern_belongs_to_the_gel():
     """A gel moved to another unit (Table II's S2 G1) brings its own speckle; another gel has another one."""
-    from ffjax.sim import optics
-
     import cv2
+
+    from ffjax.sim import optics
 
     def speckle(key):  # the fine part of the pigment (how uneven the pad looks is the unit's own)
         s = sim.get_sensor(key)

@@ -20,7 +20,8 @@ def parse_args(argv=None):
     from ffjax import registry
 
     ap = argparse.ArgumentParser(prog="python -m ffjax.train", description=__doc__.split("\n\n")[0])
-    # measured costs (2-core CPU: the quick ablation at 42ea49b, the full one at 942ebfd), so nobody starts a long run unknowingly
+    # measured costs (2-core CPU: the quick ablation at 42ea49b, the full one at 942ebfd), so nobody starts a
+    # long run unknowingly
     ap.add_argument("--preset", default="quick", choices=configs.PRESETS,
                     help="size of data, model and training (default: quick). One method on a 2-core CPU: smoke: "
                     "seconds, numbers meaningless; quick: 1-5 min (DINO RD 193 s, ResNet RD 272 s), plus 4-6 "
