@@ -41,7 +41,7 @@ def only(source: str):
     press_mod, mech = _modules()
     render = press_mod.optics.render
     if source == "pigment":
-        with mock.patch.object(mech, "shear_bulge", lambda *a, **k: 0.0):
+        with mock.patch.object(mech, "shear_bulge", lambda sh: np.zeros_like(sh.bulge)):
             yield
     elif source == "bulge":
         def no_pigment(sensor, size, depth, disp=None, seed=0):

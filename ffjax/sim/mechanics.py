@@ -163,7 +163,7 @@ def shear(ft, fz: float, contact: np.ndarray, mm_per_px: float, shear_mpa: float
     return Shear(applied, s, slip, float(np.hypot(*applied) / np.hypot(*s)), field, dz[inner].astype(np.float32))
 
 
-def shear_bulge(sh: Shear) -> np.ndarray | float:
-    """The surface displacement (mm, + = into the gel) that the shear adds: the gel rising ahead of the
-    motion and sinking behind it (0.0 without shear)."""
-    return 0.0 if sh.bulge is None else sh.bulge
+def shear_bulge(sh: Shear) -> np.ndarray:
+    """The surface displacement (mm, + = into the gel) that a shear with a field adds: the gel rising ahead of
+    the motion and sinking behind it (a function, so experiments.shear_probe can render without it)."""
+    return sh.bulge

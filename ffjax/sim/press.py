@@ -131,17 +131,15 @@ def _press(shape: Shape, sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, s
     d = np.float32(hmin + normal.delta) - h  # > 0 where the body is below the undeformed surface
     # bilinear both ways: mirror-symmetric at any ratio (area averaging is not at 60 -> 48), and the
     # solved surface is smooth on the solve grid's scale
-    surface = cv2.resize(normal.surface.astype(np.float32), (size[1], size[0]), interpolation=cv2.INTER_LINEAR)
+    to_render = lambda a: cv2.resize(a, (size[1], size[0]), interpolation=cv2.INTER_LINEAR)  # noqa: E731
+    surface = to_render(normal.surface.astype(np.float32))
     depth = np.maximum(surface, d) if normal.delta > 0 else surface
     sh = mechanics.shear(f[:2], float(f[2]), normal.contact, (sdx + sdy) / 2, gel.shear_mpa, gel.thickness_mm,
                          gel.friction)
     disp_px = None
     if sh.field is not None:
-        to_render = lambda a: cv2.resize(a, (size[1], size[0]), interpolation=cv2.INTER_LINEAR)  # noqa: E731
         disp_px = to_render(sh.field) / np.float32(mpp)
-        depth = _carried(depth, disp_px, (sh.disp_mm / mpp).astype(np.float32))
-        bulge = mechanics.shear_bulge(sh)
-        depth = depth + (to_render(bulge) if np.ndim(bulge) else bulge)
+        depth = _carried(depth, disp_px, (sh.disp_mm / mpp).astype(np.float32)) + to_render(mechanics.shear_bulge(sh))
     # the pigment skin cannot bend sharply: soften kinks at the contact edge (~0.1 mm)
     depth = mechanics.smooth(depth.astype(np.float32), SKIN_MM / mpp)
     image = optics.render(sensor, size, depth, disp_px, seed if noise else None)
