@@ -6,7 +6,10 @@ import flax.linen as nn
 
 from . import heads, resnet, vit
 
-BACKBONES = ("vit", "resnet")
+# The one list of backbone kinds: kind -> builder of its config section cfg["model"][kind]. A new backbone is a
+# module with a `from_config(section)` whose __call__(images, train) returns {"feature", "tokens"}, an entry
+# here, and its section (with checks) in configs/base.py.
+BACKBONES = {"vit": vit.from_config, "resnet": resnet.from_config}
 
 
 class ForceModel(nn.Module):
@@ -31,13 +34,12 @@ class ForceModel(nn.Module):
 
 
 def build_backbone(cfg_model: dict, kind: str, input_size: int) -> nn.Module:
-    """Backbone from cfg["model"]: kind "vit" | "resnet"; __call__(images, train) -> {"feature", "tokens"}."""
-    del input_size  # both backbones adapt to the input grid (the ViT interpolates its position table)
-    if kind == "vit":
-        return vit.from_config(cfg_model["vit"])
-    if kind == "resnet":
-        return resnet.from_config(cfg_model["resnet"])
-    raise ValueError(f"unknown backbone {kind!r}; choose one of {', '.join(BACKBONES)}")
+    """Backbone of `kind` (a BACKBONES key) from its section cfg["model"][kind]; __call__(images, train) ->
+    {"feature", "tokens"}."""
+    del input_size  # backbones adapt to the input grid (the ViT interpolates its position table)
+    if kind not in BACKBONES:
+        raise ValueError(f"unknown backbone {kind!r}; choose one of {', '.join(BACKBONES)}")
+    return BACKBONES[kind](cfg_model[kind])
 
 
 def build(cfg_model: dict, spec, input_size: int) -> ForceModel:
