@@ -1,5 +1,8 @@
 """Presets: one code path, sizes from here. `configs.get("quick", {"train.batch_size": 32})`.
 
+Every key, its default and its check are in configs/base.py; a preset (smoke.py, ...) lists only what it
+changes.
+
 `get` validates the result (`validate`): unknown keys, wrong types and impossible values fail here, with the
 dotted key in the message, before any entry point starts work.
 """
@@ -9,8 +12,10 @@ from __future__ import annotations
 import copy
 import difflib
 import importlib
-import math
 from typing import Any
+
+from configs import base
+from configs.checks import is_num, rules
 
 PRESETS = ("smoke", "quick", "full", "gpu", "paper")
 
@@ -132,96 +137,9 @@ def parse_override(text: str) -> tuple[str, Any]:
 
 
 # -- validation --------------------------------------------------------------------------------------------
-def _is_num(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-def _num(lo=None, hi=None, lo_open=False, hi_open=False, integer=False, optional=False):
-    """A checker: a (finite) number in [lo, hi] (open ends when *_open), an int when `integer`."""
-    kind = "an integer" if integer else "a number"
-    rng = "".join([f" {'>' if lo_open else '>='} {lo}" if lo is not None else "",
-                   " and" if lo is not None and hi is not None else "",
-                   f" {'<' if hi_open else '<='} {hi}" if hi is not None else ""])
-
-    def check(v):
-        if v is None and optional:
-            return None
-        if not _is_num(v) or (integer and not isinstance(v, int)) or not math.isfinite(v):
-            return f"must be {kind}{rng}, got {v!r}"
-        if lo is not None and (v <= lo if lo_open else v < lo) or hi is not None and (v >= hi if hi_open else v > hi):
-            return f"must be{rng}, got {v!r}"
-        return None
-
-    return check
-
-
-def _seq(item, length=None, min_len=1, ordered=False):
-    """A checker: a list/tuple of `length` (or >= min_len) items each passing `item`; `ordered`: lo <= hi."""
-    def check(v):
-        n = f"{length}" if length else f"at least {min_len}"
-        if not isinstance(v, (list, tuple)) or (len(v) != length if length else len(v) < min_len):
-            return f"must be a list of {n} values, got {v!r}"
-        for i, x in enumerate(v):
-            err = item(x)
-            if err:
-                return f"item {i} {err}"
-        if ordered and v[0] > v[1]:
-            return f"must be (low, high) with low <= high, got {v!r}"
-        return None
-
-    return check
-
-
-def _choice(*options, optional=False):
-    def check(v):
-        if (v is None and optional) or v in options:
-            return None
-        return f"must be one of {', '.join(repr(o) for o in options)}, got {v!r}"
-
-    return check
-
-
-def _bool(v):
-    return None if isinstance(v, bool) else f"must be True or False, got {v!r}"
-
-
-_POS_INT, _NN_INT = _num(1, integer=True), _num(0, integer=True)
-_POS, _NN, _PROB = _num(0, lo_open=True), _num(0), _num(0, 1)
-_SCALE = _seq(_num(0, 1, lo_open=True), length=2, ordered=True)
-
-# dotted key -> checker; keys a config lacks are skipped (old model.json cfgs), unknown keys are set_path's job
-RULES = {
-    "seed": _num(integer=True),
-    "data.render_size": _seq(_POS_INT, length=2), "data.input_size": _POS_INT,
-    "data.train_per_indenter": _POS_INT, "data.val_per_indenter": _NN_INT, "data.unseen_per_object": _NN_INT,
-    "data.sensor_test_per_indenter": _NN_INT, "data.calib_samples": _POS_INT,
-    "data.fz_max": _POS, "data.shear_max": _NN, "data.shard_size": _POS_INT, "data.depth_eps": _NN,
-    "model.vit.dim": _POS_INT, "model.vit.depth": _POS_INT, "model.vit.heads": _POS_INT,
-    "model.vit.patch": _POS_INT, "model.vit.mlp_ratio": _POS, "model.vit.layerscale": _num(0, optional=True),
-    "model.vit.pos_grid": _num(1, integer=True, optional=True),
-    "model.resnet.widths": _seq(_POS_INT), "model.resnet.blocks": _seq(_POS_INT),
-    "model.resnet.stem": _choice("small", "imagenet"),
-    "model.regressor.widths": _seq(_POS_INT), "model.regressor.normalize_output": _bool,
-    "model.regressor.feature_norm": _bool,
-    "model.decoder.kind": _choice("paper", "tokens"), "model.decoder.channels": _seq(_POS_INT),
-    "train.batch_size": _POS_INT, "train.epochs": _POS_INT, "train.lr_backbone": _POS, "train.lr_heads": _POS,
-    "train.schedule": _choice("constant", "warmup_cosine"), "train.warmup_steps": _NN_INT,
-    "train.ckpt_every": _POS_INT, "train.val_every": _POS_INT, "train.grad_clip": _NN,
-    "train.nonfinite": _choice("stop", "skip"),
-    "train.force_loss": _choice("newton", "normalized"), "train.compute_dtype": _choice("float32", "bfloat16"),
-    "pretrain.steps": _NN_INT, "pretrain.batch_size": _POS_INT, "pretrain.lr": _POS,
-    "pretrain.corpus_size": _NN_INT, "pretrain.out_dim": _POS_INT, "pretrain.warmup_steps": _NN_INT,
-    "pretrain.min_lr_ratio": _PROB, "pretrain.weight_decay": _NN, "pretrain.grad_clip": _NN,
-    "pretrain.head_hidden": _POS_INT, "pretrain.head_bottleneck": _POS_INT, "pretrain.freeze_last_steps": _NN_INT,
-    "pretrain.init_layerscale": _NN, "pretrain.head_bn": _bool, "pretrain.local_crops": _NN_INT,
-    "pretrain.local_size": _POS_INT, "pretrain.global_scale": _SCALE, "pretrain.local_scale": _SCALE,
-    "pretrain.student_temp": _POS, "pretrain.teacher_temp": _POS, "pretrain.teacher_temp_start": _POS,
-    "pretrain.teacher_temp_warmup": _NN_INT, "pretrain.momentum": _PROB, "pretrain.center_momentum": _PROB,
-    "pretrain.flip": _PROB, "pretrain.color_jitter": _NN, "pretrain.blur": _PROB, "pretrain.noise": _NN,
-    "pretrain.corpus_sim_fraction": _PROB,
-    "calibrate.steps": _NN_INT, "calibrate.lr": _POS, "calibrate.batch_size": _POS_INT,
-    "calibrate.holdout": _num(0, 1, hi_open=True),
-}
+# dotted key -> checker, one per key of configs/base.py; keys a config lacks are skipped (old model.json
+# cfgs), unknown keys are set_path's job
+RULES = rules(base.SPEC)
 _MISSING = object()
 
 
@@ -241,15 +159,18 @@ def _cross_checks(cfg: dict) -> list[str]:
     """Rules between keys: shapes that cannot fit together."""
     errs = []
     size, patch = _lookup(cfg, "data.input_size"), _lookup(cfg, "model.vit.patch")
-    if _is_num(size) and _is_num(patch) and patch > 0 and size % patch:
+    if is_num(size) and is_num(patch) and patch > 0 and size % patch:
         errs.append(f"data.input_size ({size}) must be divisible by model.vit.patch ({patch}): the ViT cuts "
                     f"the input into {patch}x{patch} patches")
+    fz_min, fz_max = _lookup(cfg, "data.fz_min"), _lookup(cfg, "data.fz_max")
+    if is_num(fz_min) and is_num(fz_max) and fz_min >= fz_max:
+        errs.append(f"data.fz_min ({fz_min}) must be below data.fz_max ({fz_max}): Fz is sampled between them")
     render = _lookup(cfg, "data.render_size")
-    if isinstance(render, (list, tuple)) and all(_is_num(v) for v in render) and min(render) < MIN_RENDER:
+    if isinstance(render, (list, tuple)) and all(is_num(v) for v in render) and min(render) < MIN_RENDER:
         errs.append(f"data.render_size ({tuple(render)}) must be at least {MIN_RENDER} px on each side: smaller, "
                     "a contact covers less than a pixel and the depth targets are all zero")
     dim, heads = _lookup(cfg, "model.vit.dim"), _lookup(cfg, "model.vit.heads")
-    if _is_num(dim) and _is_num(heads) and heads > 0 and dim % heads:
+    if is_num(dim) and is_num(heads) and heads > 0 and dim % heads:
         errs.append(f"model.vit.dim ({dim}) must be divisible by model.vit.heads ({heads})")
     widths, blocks = _lookup(cfg, "model.resnet.widths"), _lookup(cfg, "model.resnet.blocks")
     if isinstance(widths, (list, tuple)) and isinstance(blocks, (list, tuple)) and len(widths) != len(blocks):

@@ -6,9 +6,7 @@ ResNet is half of it), and DINO pretraining costs ~3 s per ResNet step (quick: 5
 reports) and to larger test sets (tighter means), which is what `full` is for.
 """
 
-import copy
-
+from configs.checks import derive
 from configs.quick import CONFIG as _QUICK
 
-CONFIG = copy.deepcopy(_QUICK)
-CONFIG["data"].update(unseen_per_object=200, sensor_test_per_indenter=60)
+CONFIG = derive(_QUICK, {"seeds": 3, "data": {"unseen_per_object": 200, "sensor_test_per_indenter": 60}})

@@ -7,15 +7,14 @@ step costs about the same at batch 256, so ~6,000 steps per method see ~1.5 M sa
 this project: the tables in README come from quick and full.
 """
 
-import copy
-
+from configs.checks import derive
 from configs.quick import CONFIG as _QUICK
 
-CONFIG = copy.deepcopy(_QUICK)
-CONFIG["data"].update(train_per_indenter=1200, val_per_indenter=100, unseen_per_object=200,
-                      sensor_test_per_indenter=60)
-CONFIG["model"]["vit"].update(dim=128, depth=4, heads=4)
-CONFIG["model"]["resnet"].update(widths=(32, 64, 128, 256), blocks=(2, 2, 2, 2))
-CONFIG["model"]["decoder"].update(channels=(64, 32, 32, 16))
-CONFIG["train"].update(batch_size=256, epochs=128, warmup_steps=200, ckpt_every=1000)
-CONFIG["pretrain"].update(steps=1000, batch_size=128, corpus_size=20000)
+CONFIG = derive(_QUICK, {
+    "data": {"train_per_indenter": 1200, "val_per_indenter": 100, "unseen_per_object": 200,
+             "sensor_test_per_indenter": 60},
+    "model": {"vit": {"dim": 128, "depth": 4, "heads": 4}, "resnet": {"widths": (32, 64, 128, 256)},
+              "decoder": {"channels": (64, 32, 32, 16)}},
+    "train": {"batch_size": 256, "epochs": 128, "warmup_steps": 200, "ckpt_every": 1000},
+    "pretrain": {"steps": 1000, "batch_size": 128, "corpus_size": 20000},
+})

@@ -1,0 +1,129 @@
+"""Every config key once: its default, the check its values must pass, and (in a comment) what it does.
+
+The defaults are the `quick` preset (the README's main command); every other preset is its differences from
+this (configs/smoke.py, paper.py) or from another preset (full.py, gpu.py). `configs.validate` runs the checks
+below; keys checked together (input_size vs. patch, ...) are in configs/__init__.py `_cross_checks`.
+Code that reads a key which old configs (model.json of earlier runs) lack reads it with the default here.
+"""
+
+from configs.checks import INT, NN, NN_INT, POS, POS_INT, PROB, SCALE, Key, boolean, choice, defaults, num, seq
+from ffjax.sim.sensors import SENSOR_NAMES
+
+_FORCE3 = seq(num(), length=3, optional=True)
+
+SPEC = {
+    "seed": Key(0, INT),  # root of every random stream: data, init, shuffling, augmentation
+    "seeds": Key(1, POS_INT),  # how many seeds (seed, seed + 1, ...) the experiments run unless told otherwise
+    "data": {
+        "render_size": Key((48, 64), seq(POS_INT, length=2)),  # (H, W) of the simulated frame; 240x320 is native
+        "input_size": Key(64, POS_INT),  # square model input after pad + resize
+        "train_per_indenter": Key(600, POS_INT),  # training presses per indenter (10 indenters)
+        "val_per_indenter": Key(60, NN_INT),  # validation presses per indenter
+        "unseen_per_object": Key(100, NN_INT),  # Table I: presses per unseen object
+        "sensor_test_per_indenter": Key(30, NN_INT),  # Table II: presses per indenter on every sensor
+        "calib_samples": Key(100, POS_INT),  # Table III: calibration presses per sensor (the paper's ~100)
+        "train_sensor": Key("mini-1-gel1", choice(*SENSOR_NAMES)),  # sensor of the train, val and unseen splits
+        "fz_min": Key(0.05, NN),  # N; Fz is stratified over [fz_min, fz_max] per shape
+        "fz_max": Key(15.0, POS),  # N
+        "tilt_max_deg": Key(7.0, num(0, 90, hi_open=True)),  # roll/pitch of a press uniform in +-tilt_max_deg
+        "shear_noise": Key(0.06, NN),  # std of the shear beyond Fz * tan(tilt), as a fraction of Fz
+        "shear_max": Key(2.0, NN),  # N; |Fx|, |Fy| are redrawn above it (the simulator caps at mu * Fz)
+        "shard_size": Key(512, POS_INT),  # presses per .npz shard on disk
+        # mm; widens the depth normalization range (train min - eps, max + eps); the release's is 5 depth units
+        "depth_eps": Key(0.05, NN),
+    },
+    "model": {
+        # one section per backbone kind (ffjax.models.BACKBONES), built by that kind's from_config
+        "vit": {
+            "dim": Key(64, POS_INT),  # token width
+            "depth": Key(2, POS_INT),  # transformer blocks
+            "heads": Key(4, POS_INT),  # attention heads (dim must divide by it)
+            "patch": Key(8, POS_INT),  # patch side in px (input_size must divide by it)
+            "mlp_ratio": Key(4.0, POS),  # MLP hidden width / dim
+            "layerscale": Key(1e-5, num(0, optional=True)),  # LayerScale init value (DINOv2's 1e-5)
+            "pos_grid": Key(None, num(1, integer=True, optional=True)),  # side of the position table; None: input grid
+            # DINOv2 resizes the position table by (grid + offset) / table: kept for weight parity
+            "interpolate_offset": Key(0.1, NN),
+        },
+        "resnet": {
+            "widths": Key((16, 32, 64, 128), seq(POS_INT)),  # channels per stage
+            "blocks": Key((2, 2, 2, 2), seq(POS_INT)),  # basic blocks per stage (as many stages as widths)
+            "stem": Key("imagenet", choice("small", "imagenet")),  # imagenet: torchvision's stride-4 stem; small: 3x3
+        },
+        "regressor": {
+            "widths": Key((256, 128, 64, 32), seq(POS_INT)),  # hidden layers of the force MLP
+            "normalize_output": Key(True, boolean),  # output scaled by the training force range (out_scale/out_shift)
+            "out_scale": Key(None, _FORCE3),  # N per unit of output, per axis; None: training fills it from the labels
+            "out_shift": Key(None, _FORCE3),  # N, per axis; filled with out_scale
+            "feature_norm": Key(True, boolean),  # BatchNorm on the backbone feature first (docs/training.md)
+        },
+        "decoder": {
+            "kind": Key("tokens", choice("paper", "tokens")),  # paper: the release's upsample + conv k5; tokens: light
+            "channels": Key((32, 16, 16, 8), seq(POS_INT)),  # channels per upsampling stage
+            "fast": Key(True, boolean),  # paper decoder as Dense + pixel shuffle (same function, faster on CPU)
+        },
+    },
+    "train": {
+        "batch_size": Key(64, POS_INT),  # global batch (divisible by the device count)
+        "epochs": Key(15, POS_INT),
+        # CPU scale trains ~1.4k steps, not the paper's ~150k: higher rates with warmup + cosine decay
+        # (at 1e-4 / 5e-4 constant, 3 epochs reached val Fz MAE 2.24 N; at these, 2.05 N).
+        "lr_backbone": Key(5e-4, POS),  # times the method's lr_backbone_scale; 0 when the backbone is frozen
+        "lr_heads": Key(1e-3, POS),  # regressor and decoder, times the method's lr_heads_scale
+        "schedule": Key("warmup_cosine", choice("constant", "warmup_cosine")),
+        "warmup_steps": Key(50, NN_INT),  # linear warmup of warmup_cosine
+        "ckpt_every": Key(200, POS_INT),  # steps between resumable checkpoints (and the last step)
+        # validate (and pick the best checkpoint) every this many epochs; the last epoch always validates
+        "val_every": Key(1, POS_INT),
+        "grad_clip": Key(0.0, NN),  # global gradient-norm clip; 0: none
+        # a NaN/inf loss or gradient: "stop" (raise, naming the step and batch) or "skip" (drop that update)
+        "nonfinite": Key("stop", choice("stop", "skip")),
+        # force term of the loss: "newton" (L1 in N, the release) or "normalized" (each axis / its range)
+        "force_loss": Key("normalized", choice("newton", "normalized")),
+        # forward/backward precision of the train step: "float32" or "bfloat16" (float32 master weights,
+        # float32 losses, optimizer and BatchNorm statistics; evaluation stays float32)
+        "compute_dtype": Key("float32", choice("float32", "bfloat16")),
+    },
+    # DINO self-distillation of the backbones (ffjax.train.pretrain, docs/training.md); steps 0: load real
+    # weights instead. Sized for ~2-3 min per backbone on 2 cores.
+    "pretrain": {
+        "steps": Key(180, NN_INT),
+        "batch_size": Key(32, POS_INT),
+        "lr": Key(5e-4, POS),  # peak, after warmup_steps, cosine down to min_lr_ratio * lr
+        "corpus_size": Key(6000, NN_INT),  # unlabeled images (ffjax.train.corpus)
+        "out_dim": Key(1024, POS_INT),  # prototypes of the DINO head
+        "warmup_steps": Key(20, NN_INT),
+        "min_lr_ratio": Key(0.05, PROB),
+        "weight_decay": Key(0.04, NN),
+        "grad_clip": Key(3.0, NN),
+        "head_hidden": Key(512, POS_INT),  # DINO head MLP width
+        "head_bottleneck": Key(128, POS_INT),  # L2-normalised bottleneck before the prototypes
+        "freeze_last_steps": Key(10, NN_INT),  # the prototype layer stays fixed this many steps
+        "init_layerscale": Key(0.1, NN),  # ViT LayerScale at the start of pretraining (1e-5 never leaves uniform)
+        "head_bn": Key(True, boolean),  # BatchNorm in the head MLP (without it the teacher stays uniform)
+        "local_crops": Key(4, NN_INT),  # multi-crop: local crops per image beside the 2 global ones
+        "local_size": Key(32, POS_INT),  # px
+        "global_scale": Key((0.4, 1.0), SCALE),  # area fraction range of a global crop
+        "local_scale": Key((0.1, 0.4), SCALE),  # area fraction range of a local crop
+        "student_temp": Key(0.1, POS),
+        "teacher_temp": Key(0.05, POS),  # after teacher_temp_warmup steps from teacher_temp_start
+        "teacher_temp_start": Key(0.04, POS),
+        "teacher_temp_warmup": Key(60, NN_INT),
+        "momentum": Key(0.996, PROB),  # teacher EMA momentum at step 0 (cosine to 1)
+        "center_momentum": Key(0.9, PROB),  # EMA of the teacher centre
+        "flip": Key(0.5, PROB),  # augmentation: flip probability
+        "color_jitter": Key(0.4, NN),  # colour and LED-gain jitter strength
+        "blur": Key(0.5, PROB),  # probability of a blur
+        "noise": Key(0.1, NN),  # pixel noise std
+        "corpus_sim_fraction": Key(0.5, PROB),  # share of the corpus from randomised simulated sensors
+    },
+    # calibration to a new sensor from ~100 samples (ffjax.calibrate)
+    "calibrate": {
+        "steps": Key(200, NN_INT),
+        "lr": Key(1e-4, POS),
+        "batch_size": Key(32, POS_INT),
+        "holdout": Key(0.2, num(0, 1, hi_open=True)),  # fraction of the samples kept aside to report the error
+    },
+}
+
+CONFIG = defaults(SPEC)
