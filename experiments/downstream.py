@@ -95,19 +95,18 @@ def find_checkpoints(cfg: dict, args, out: Path) -> tuple[dict, str]:
 
 def train_fallback(cfg: dict, args, out: Path) -> Path:
     """A DINO RD run on the preset's dataset, trained as the ablation trains it (cached stage)."""
-    from experiments import ablation
+    from experiments import kernel
     from ffjax import registry
 
     data_root = common.ensure_data(cfg, args.data, progress=not args.quiet)
     try:
-        backbone = ablation.pretrained_backbone(cfg, "vit", data_root, args.force, not args.quiet)
+        backbone = kernel.pretrained_backbone(cfg, "vit", data_root, args.force, not args.quiet)
     except ImportError:  # no pretraining module in this checkout: train from random init
         backbone = None
     seed = int(cfg["seed"])
-    run_dir = out / "runs" / MAIN_METHOD / f"seed{seed}"
-    ablation.train_run(
-        cfg, registry.get(MAIN_METHOD), seed, data_root, run_dir, backbone, args.force, not args.quiet
-    )
+    run_dir = kernel.run_dir(out, MAIN_METHOD, seed)
+    kernel.train(cfg, registry.get(MAIN_METHOD), seed, data_root, run_dir, lambda: backbone, args.force,
+                 not args.quiet)
     return run_dir
 
 

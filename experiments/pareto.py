@@ -4,8 +4,9 @@ throughput and parameter count, with the Pareto front marked.
     python -m experiments.pareto --preset {smoke,quick,full} [--sizes ...] [--methods ...] [--grid lean|full]
                                  [--seeds N] [--out DIR]
 
-Stages reuse experiments.ablation (dataset, pretraining, training, evaluation; each cached). A size other
-than the preset's own pretrains its own backbone (DATA/pretrained/<kind>-<size>-<key>). Cells trained (`--grid lean`,
+Stages are the ablation's (dataset, pretraining, and experiments.kernel's training and evaluation; each
+cached). A size other than the preset's own pretrains its own backbone (DATA/pretrained/<kind>-<size>-<key>)
+and trains into OUT/runs/<size>/<method>/seed<k>. Cells trained (`--grid lean`,
 the default): every method at the preset's own size, and only the anchor (dino_rd for ViT, resnet_rd for
 ResNet) at the other sizes; `--grid full` trains every method at every size. Timing happens after all
 training, in one phase, with rounds interleaved over the cells (so load drift hits every cell alike):
@@ -17,6 +18,7 @@ Writes OUT/pareto.png, pareto.md, pareto.csv and results.json.
 from __future__ import annotations
 
 import copy
+import functools
 import os
 import platform
 import statistics
@@ -27,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from experiments import ablation, common, tables
+from experiments import common, kernel, tables
 from ffjax import registry
 
 # name: (backbone kind, overrides of cfg["model"][kind]); {} = the preset's own model. All patch 8.
@@ -85,7 +87,7 @@ def main(argv=None) -> dict:
     unknown = [s for s in sizes if s not in SIZES]
     if unknown:
         ap.error(f"unknown sizes {unknown}; choose from {', '.join(SIZES)}")
-    seeds = args.seeds or ablation.DEFAULT_SEEDS[args.preset]
+    seeds = args.seeds or kernel.DEFAULT_SEEDS[args.preset]
     out = Path(args.out or common.ROOT / "results" / f"pareto-{args.preset}")
     reuse = None if args.ablation == "none" else common.ablation_folder(ap, args.ablation, args.preset)
     results = run(cfg, methods, sizes, seeds, out, data_dir=args.data, full_grid=args.grid == "full", force=args.force,
@@ -128,23 +130,13 @@ def backbone_for(cfg, scfg, size, spec, data_root, force, progress):
     from ffjax.train import pretrain
 
     if not size_table(cfg["preset"])[size][1]:
-        return ablation.pretrained_backbone(cfg, spec.backbone, data_root, force, progress)
+        return kernel.pretrained_backbone(cfg, spec.backbone, data_root, force, progress)
     # Beside the ablation's backbones (sharing the corpus cache pretrain keeps in the parent folder), one folder
     # per size config: a changed size table never overwrites another size's backbone.
     key = common.fingerprint(spec.backbone, scfg["model"][spec.backbone])[:8]
     folder = data_root / "pretrained" / f"{spec.backbone}-{size}-{key}"
     pretrain.ensure(scfg, spec.backbone, folder, force=force, progress=progress)
     return pretrain.load_backbone(folder)
-
-
-def reusable_run(reuse_from, cfg, spec, seed, data_root) -> Path | None:
-    """The ablation's finished run for this method/seed when its stage key matches ours (same training)."""
-    if reuse_from is None:
-        return None
-    d = Path(reuse_from) / "runs" / spec.name / f"seed{seed}"
-    info = common.read_json(d / "stage.json") or {}
-    ok = info.get("status") == "done" and info.get("key") == ablation.train_key(cfg, spec, seed, data_root)
-    return d if ok else None
 
 
 # ---------------------------------------------------------------- the Pareto front
@@ -280,7 +272,7 @@ def run(cfg: dict, methods, sizes, n_seeds: int, out, data_dir=None, full_grid: 
     t_start = time.perf_counter()
     timings: dict = {}
     data_root = common.ensure_data(cfg, data_dir, progress=progress)
-    seeds = [int(cfg["seed"]) + k for k in range(n_seeds)]
+    seeds = kernel.seeds(cfg, n_seeds)
     cells = grid(cfg, methods, sizes, full=full_grid)
     per_run, run_dirs, reused = {}, {}, []
     for size, method in tqdm(cells, desc="pareto cells", disable=not progress or len(cells) < 2):
@@ -288,18 +280,15 @@ def run(cfg: dict, methods, sizes, n_seeds: int, out, data_dir=None, full_grid: 
         label = f"{method}@{size}"
         t = time.perf_counter()
         own_size = not size_table(cfg["preset"])[size][1]  # the ablation trains exactly this model
-        backbone = None
+        # loaded once per cell, and only if one of its seeds trains here
+        backbone = functools.cache(functools.partial(backbone_for, cfg, scfg, size, spec, data_root, force, progress))
         for seed in seeds:
-            run_dir = reusable_run(reuse_from, scfg, spec, seed, data_root) if own_size else None
-            if run_dir is None:
-                run_dir = out / "runs" / size / method / f"seed{seed}"
-                if backbone is None:
-                    backbone = backbone_for(cfg, scfg, size, spec, data_root, force, progress)
-                ablation.train_run(scfg, spec, seed, data_root, run_dir, backbone, force, progress)
-            else:
-                reused.append(str(run_dir))
-            per_run.setdefault(label, []).append(ablation.evaluate_run(scfg, run_dir, data_root, force))
-            run_dirs.setdefault(label, []).append(run_dir)
+            r = kernel.run(scfg, spec, seed, data_root, out, backbone=backbone,
+                           reuse_from=reuse_from if own_size else None, size=size, force=force, progress=progress)
+            if r.reused:
+                reused.append(str(r.dir))
+            per_run.setdefault(label, []).append(r.result)
+            run_dirs.setdefault(label, []).append(r.dir)
         timings.setdefault("cells_s", {})[label] = round(time.perf_counter() - t, 1)
     timings["train_eval_s"] = round(time.perf_counter() - t_start, 1)
 

@@ -15,13 +15,14 @@ marked ("doubles at"). Writes OUT/results.json, stability.md, stability.csv, see
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from pathlib import Path
 
 import numpy as np
 
-from experiments import ablation, common
+from experiments import common, kernel
 from experiments import paper_numbers as P
 from experiments.sweep_loss import register_from
 from experiments.tables import save_png
@@ -256,20 +257,18 @@ def checkpoints(cfg, methods, ablation_dir: Path, data_dir, force, progress) -> 
     data_root = Path(saved["data"]) if saved.get("data") and not data_dir else None
     if not (data_root and (data_root / "manifest.json").is_file()):
         data_root = common.ensure_data(cfg, data_dir, progress=progress)
-    backbones = {}
+    backbone = functools.cache(lambda kind: kernel.pretrained_backbone(cfg, kind, data_root, force, progress))
+    evals = {}
     for m in methods:
-        spec = registry.get(m)
         if ckpts[m]:
+            evals[m] = [kernel.evaluate(cfg, d, data_root) for d in ckpts[m]]
             continue
-        if spec.pretrained and spec.backbone not in backbones:
-            backbones[spec.backbone] = ablation.pretrained_backbone(cfg, spec.backbone, data_root, force, progress)
-        t = time.perf_counter()
-        for seed in seeds:
-            run_dir = ablation_dir.absolute() / "runs" / m / f"seed{seed}"
-            ablation.train_run(cfg, spec, seed, data_root, run_dir, backbones.get(spec.backbone), force, progress)
-            ckpts[m].append(run_dir)
-        timings[f"train_{m}_s"] = round(time.perf_counter() - t, 1)
-    evals = {m: [ablation.evaluate_run(cfg, d, data_root, False) for d in ckpts[m]] for m in methods}
+        spec = registry.get(m)
+        runs = [kernel.run(cfg, spec, seed, data_root, ablation_dir.absolute(),
+                           backbone=functools.partial(backbone, spec.backbone), force=force, progress=progress)
+                for seed in seeds]
+        ckpts[m], evals[m] = [r.dir for r in runs], [r.result for r in runs]
+        timings[f"train_{m}_s"] = round(sum(r.train_s for r in runs), 1)
     return ckpts, evals, timings, seeds
 
 

@@ -8,7 +8,7 @@ method with dataclasses.replace (data, not a new code path). beta = 0 means the 
 (no decoder at all, so exactly DINO R), not present-but-unweighted; the base's own beta (10 for DINO RD)
 is the base method itself. Variants that match a method the ablation already trained (same name, config
 and seed) reuse its run folder instead of training again. Training and evaluation are the ablation's
-(`ablation.train_run`, `ablation.evaluate_run`). Writes OUT/results.json, sweep.md, sweep.csv, sweep.png.
+(experiments.kernel). Writes OUT/results.json, sweep.md, sweep.csv, sweep.png.
 """
 
 from __future__ import annotations
@@ -20,12 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments import ablation, common, tables
+from experiments import common, kernel, tables
 from experiments import paper_numbers as P
 from ffjax import registry
 
 DEFAULT_BETAS = (0.0, 1.0, 3.0, 10.0, 30.0)
-DEFAULT_SEEDS = {"smoke": 1, "quick": 1, "full": 3, "gpu": 1, "paper": 1}
 # What each run is scored on (from its ablation evaluation): unseen objects = Table I mean; unseen
 # sensors = Table II mean over the 8 GelSight unit x gel combinations other than the training one.
 METRICS = {"unseen_objects": "unseen objects (Table I mean)",
@@ -71,15 +70,6 @@ def scores(ev: dict) -> dict:
             "unseen_objects_mae_n": np.mean([t1[o]["mae_n"] for o in t1], axis=0).round(4).tolist()}
 
 
-def reusable_run(ablation_dir: Path | None, spec, seed: int, key: str) -> Path | None:
-    """The ablation's finished run folder for this method and seed, if it was trained with the same key."""
-    if ablation_dir is None:
-        return None
-    folder = Path(ablation_dir) / "runs" / spec.name / f"seed{seed}"
-    info = common.read_json(folder / "stage.json") or {}
-    return folder.absolute() if info.get("key") == key and info.get("status") == "done" else None
-
-
 def main(argv=None) -> dict:
     ap = common.base_parser(__doc__.strip().splitlines()[0],
                             costs={"quick": "20 min reusing an ablation's runs "
@@ -94,7 +84,7 @@ def main(argv=None) -> dict:
     if any(b < 0 for b in args.betas) or args.alpha <= 0:
         ap.error("betas must be >= 0 and alpha > 0")
     cfg = common.config_from_args(ap, args)
-    seeds_n = args.seeds or DEFAULT_SEEDS[args.preset]
+    seeds_n = args.seeds or kernel.DEFAULT_SEEDS[args.preset]
     if seeds_n < 1:
         ap.error("--seeds must be at least 1")
     base = registry.get(args.base)
@@ -119,24 +109,20 @@ def run(cfg, base, betas, alpha, n_seeds, out, ablation_dir=None, data_dir=None,
     backbone = None
     if any(s.pretrained for s in specs.values()):
         t = time.perf_counter()
-        backbone = ablation.pretrained_backbone(cfg, base.backbone, data_root, force, progress)
+        backbone = kernel.pretrained_backbone(cfg, base.backbone, data_root, force, progress)
         timings[f"pretrain_{base.backbone}_s"] = round(time.perf_counter() - t, 1)
-    seeds = [int(cfg["seed"]) + k for k in range(n_seeds)]
+    seeds = kernel.seeds(cfg, n_seeds)
     per_beta = {}
     for beta, spec in specs.items():
         runs, per_seed = [], []
         for seed in seeds:
-            key = ablation.train_key(cfg, spec, seed, data_root)
-            run_dir = (None if force else reusable_run(ablation_dir, spec, seed, key)) \
-                or out / "runs" / spec.name / f"seed{seed}"
-            t = time.perf_counter()
-            ablation.train_run(cfg, spec, seed, data_root, run_dir, backbone if spec.pretrained else None, force,
-                               progress)
-            timings["train_s"].setdefault(f"{beta:g}", []).append(round(time.perf_counter() - t, 1))
-            t = time.perf_counter()
-            per_seed.append(scores(ablation.evaluate_run(cfg, run_dir, data_root, force)))
-            timings["eval_s"].setdefault(f"{beta:g}", []).append(round(time.perf_counter() - t, 1))
-            runs.append(str(run_dir))
+            # --force retrains here rather than reusing the ablation's run
+            r = kernel.run(cfg, spec, seed, data_root, out, backbone=lambda: backbone,
+                           reuse_from=None if force else ablation_dir, force=force, progress=progress)
+            timings["train_s"].setdefault(f"{beta:g}", []).append(r.train_s)
+            timings["eval_s"].setdefault(f"{beta:g}", []).append(r.eval_s)
+            per_seed.append(scores(r.result))
+            runs.append(str(r.dir))
         per_beta[f"{beta:g}"] = {
             "beta": beta, "alpha": alpha, "ratio": beta / alpha, "method": spec.name, "paper_name": spec.paper_name,
             "depth_head": spec.depth_head, "run_dirs": runs, "per_seed": per_seed,

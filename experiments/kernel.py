@@ -1,0 +1,205 @@
+"""One experiment run: a method x seed trained, evaluated (Tables I-III) and timed in its folder, and reused
+when a folder already holds it finished. The experiments that train (ablation, sweep_loss, pareto, stability,
+downstream's fallback run) train and score through here.
+
+    folder = run_dir(out, "dino_rd", 0)                # OUT/runs/dino_rd/seed0 (a sized cell: OUT/runs/<size>/...)
+    r = run(cfg, spec, seed, data_root, out, backbone=lambda: pretrained_backbone(...), reuse_from=ablation_dir)
+    r.dir, r.result, r.train_s, r.eval_s, r.reused
+
+Caching: training is a `common.Stage` keyed by `train_key` (the data/model/train/pretrain config, the
+method's spec, the seed and the dataset's config); a finished stage is not redone, a partial one resumes
+from its checkpoints. The evaluation is cached in RUN/eval.json under a key of the run's stage.json and the
+calibration config. A folder of another experiment (`reuse_from`, an ablation's) is used as it stands when
+its stage holds the same key and is done.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from experiments import common, paper_numbers
+
+# Seeds per method when --seeds is not given, per preset.
+DEFAULT_SEEDS = {"smoke": 1, "quick": 1, "full": 3, "gpu": 1, "paper": 1}
+# Keys the config gained in issue 15, at the values the code used before they were keys. The training key
+# leaves them out while they hold these values, so runs trained before the keys existed stay valid (reused).
+BEFORE_KEYS = {("data", "train_sensor"): "mini-1-gel1", ("data", "fz_min"): 0.05, ("data", "tilt_max_deg"): 7.0,
+               ("data", "shear_noise"): 0.06, ("model", "vit", "interpolate_offset"): 0.1,
+               ("model", "decoder", "fast"): True}
+# Table III: (target sensor, which layers calibrate): GelSight units tune the last Linear + LayerNorm,
+# DIGIT (another kind of sensor) the whole regressor, as the paper does.
+CALIBRATIONS = (("mini-2-gel1", "last"), ("mini-3-gel2", "last"), ("digit", "regressor"))
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """A trained and evaluated run: its folder, its Tables I-III numbers, the wall seconds training and
+    evaluating took in this call (near 0 when cached) and whether it is another experiment's folder, reused."""
+
+    dir: Path
+    result: dict
+    train_s: float
+    eval_s: float
+    reused: bool
+
+
+def run_dir(out, method: str, seed: int, size: str | None = None) -> Path:
+    """OUT/runs/<method>/seed<k>, or OUT/runs/<size>/<method>/seed<k> for a backbone size other experiments
+    do not share (pareto): the layout results.json's "checkpoints" name and later experiments reuse."""
+    runs = Path(out) / "runs"
+    return (runs / size if size else runs) / method / f"seed{seed}"
+
+
+def seeds(cfg: dict, n: int) -> list[int]:
+    """The n training seeds of a sweep: the config's seed and the ones after it."""
+    return [int(cfg["seed"]) + k for k in range(n)]
+
+
+def train_key(cfg: dict, spec, seed: int, data_root: Path) -> str:
+    """The training stage's key: what decides the trained weights (not paths, not progress bars)."""
+    manifest = common.read_json(Path(data_root) / "manifest.json") or {}
+    keyed = copy.deepcopy({k: cfg[k] for k in ("data", "model", "train", "pretrain")})
+    for *parents, leaf in BEFORE_KEYS:
+        node = keyed
+        for p in parents:
+            node = node.get(p) if isinstance(node, dict) else None
+        if isinstance(node, dict) and leaf in node and node[leaf] == BEFORE_KEYS[(*parents, leaf)]:
+            del node[leaf]
+    return common.fingerprint("train", keyed, spec.__dict__, seed, manifest.get("config"))
+
+
+def reusable(reuse_from, cfg: dict, spec, seed: int, data_root: Path) -> Path | None:
+    """reuse_from's run folder for this method and seed (absolute) when it finished training with the same
+    key, else None (also when reuse_from is None)."""
+    if reuse_from is None:
+        return None
+    folder = run_dir(reuse_from, spec.name, seed).absolute()
+    info = common.read_json(folder / "stage.json") or {}
+    same = info.get("key") == train_key(cfg, spec, seed, data_root)
+    return folder if same and info.get("status") == "done" else None
+
+
+def pretrained_backbone(cfg: dict, kind: str, data_root: Path, force: bool, progress: bool):
+    """(params, batch_stats) of the preset's cached self-supervised backbone, pretraining it on first use."""
+    from ffjax.train import pretrain
+
+    folder = Path(data_root) / "pretrained" / kind
+    pretrain.ensure(cfg, kind, folder, force=force, progress=progress)
+    return pretrain.load_backbone(folder)
+
+
+def train(cfg: dict, spec, seed: int, data_root: Path, folder: Path, backbone: Callable | None = None,
+          force: bool = False, progress: bool = True) -> None:
+    """Train one method/seed in `folder`, or leave it when finished, or resume it if a kill left it partial.
+    backbone: called (only when training happens) for the initial (params, batch_stats) of a pretrained
+    method; a method that does not start pretrained never gets one."""
+    from ffjax import train as train_lib
+
+    stage = common.Stage(folder, train_key(cfg, spec, seed, data_root), force)
+    if stage.done:
+        return
+    run_cfg = copy.deepcopy(cfg)
+    run_cfg["seed"] = seed
+    init = backbone() if backbone is not None and spec.pretrained else None
+    train_lib.train(run_cfg, spec, data_root, folder, resume=(folder / "checkpoints").exists(), init_backbone=init,
+                    progress=progress)
+    stage.finish()
+
+
+def evaluate(cfg: dict, folder: Path, data_root: Path, force: bool = False) -> dict:
+    """Tables I-III numbers of one trained run (cached in RUN/eval.json).
+
+    Every test split goes through the backbone once; the regressor (before and after each calibration)
+    then runs on the cached features, which is exact because calibration never touches the backbone.
+    """
+    key = common.fingerprint("eval", common.read_json(folder / "stage.json"), cfg["calibrate"], 2)
+    cached = common.read_json(folder / "eval.json")
+    if cached and cached.get("key") == key and not force:
+        return cached["result"]
+    from ffjax.sim import dataset
+
+    ev = _Evaluator(folder, data_root)
+    sensors = {s: ev.features("sensor", s) for s in dataset.SENSOR_KEYS}
+    result = {"table1": {o: ev.score(ev.reg, ev.features("unseen", o)) for o in paper_numbers.OBJECTS},
+              "table2": {s: ev.score(ev.reg, fx) for s, fx in sensors.items()}}
+    result["table3"] = {target: _calibration(cfg, ev, target, layers, sensors, result["table2"])
+                        for target, layers in CALIBRATIONS}
+    common.write_json(folder / "eval.json", {"key": key, "result": result})
+    return result
+
+
+class _Evaluator:
+    """A run's model, its regressor and the scoring of (features, forces) pairs."""
+
+    def __init__(self, folder: Path, data_root: Path):
+        from ffjax import calibrate, models
+        from ffjax.train import load_checkpoint
+
+        run_cfg, spec, self.stats, self.variables = load_checkpoint(folder, "best")
+        self.size = int(run_cfg["data"]["input_size"])
+        self.model = models.build(run_cfg["model"], spec, self.size)
+        self.head = run_cfg["model"]["regressor"]
+        self.reg = self.variables["params"]["regressor"]
+        self.reg_stats = calibrate.regressor_stats(self.variables)
+        self.data_root = data_root
+
+    def features(self, kind: str, name: str):
+        """(backbone features, forces) of one test split."""
+        from ffjax import calibrate, data
+        from ffjax.sim import dataset
+
+        split = data.open_split(dataset.split_dir(self.data_root, kind, name))
+        arr = data.load_arrays(split, self.stats, self.size)
+        return calibrate.features(self.model, self.variables, arr["image"]), arr["force"]
+
+    def score(self, reg_params, fx) -> dict:
+        from ffjax import calibrate, metrics
+
+        pred = calibrate.predict_from_features(self.head, reg_params, fx[0], self.reg_stats)
+        return metrics.summarize(pred, fx[1], self.stats.force_min, self.stats.force_max)
+
+
+def _calibration(cfg: dict, ev: _Evaluator, target: str, layers: str, sensors: dict, table2: dict) -> dict:
+    """Table III for one target sensor: its error before and after calibrating `layers` on its calibration
+    split, and what the calibration does to the other GelSight sensors."""
+    from ffjax import calibrate
+
+    cc = cfg["calibrate"]
+    tuned = calibrate.fit_regressor(ev.head, ev.reg, *ev.features("calib", target), layers=layers,
+                                    steps=int(cc["steps"]), lr=float(cc["lr"]), batch_size=int(cc["batch_size"]),
+                                    seed=int(cfg["seed"]), reg_stats=ev.reg_stats)
+    others = [s for s in paper_numbers.SENSORS if s != target]
+    before = {s: table2[s]["nl1"] for s in others}
+    after = {s: ev.score(tuned, sensors[s])["nl1"] for s in others}
+    return {
+        "layers": layers,
+        "before": table2[target],
+        "after": ev.score(tuned, sensors[target]),
+        "others_before": float(np.mean(list(before.values()))),
+        "others_after": float(np.mean(list(after.values()))),
+        # relative change of the uncalibrated GelSight sensors' error, percent (paper: 4% for DINO RD)
+        "degradation_pct": float(np.mean([(after[s] - before[s]) / before[s] * 100 for s in others])),
+    }
+
+
+def run(cfg: dict, spec, seed: int, data_root: Path, out, *, backbone: Callable | None = None, reuse_from=None,
+        size: str | None = None, force: bool = False, progress: bool = True) -> Run:
+    """One method x seed, trained and evaluated: reuse_from's finished run with the same training key when
+    there is one (pass None to never reuse), else run_dir(out, spec.name, seed, size) trained (cached, resumed)
+    here. The evaluation is cached in the run's folder either way; `force` redoes what is done here."""
+    t = time.perf_counter()
+    folder = reusable(reuse_from, cfg, spec, seed, data_root)
+    reused = folder is not None
+    if not reused:
+        folder = run_dir(out, spec.name, seed, size)
+        train(cfg, spec, seed, data_root, folder, backbone, force, progress)
+    train_s = round(time.perf_counter() - t, 1)
+    t = time.perf_counter()
+    result = evaluate(cfg, folder, data_root, force)
+    return Run(folder, result, train_s, round(time.perf_counter() - t, 1), reused)
