@@ -10,7 +10,9 @@ Sampling, as the paper's data collection: per shape, Fz is stratified over [fz_m
 sample per equal-width bin, shuffled) so each shape's Fz histogram is flat; x, y uniform in a safe
 region that keeps the shape's 15 N footprint on the pad; yaw uniform; roll/pitch uniform within
 +-tilt_max_deg. The robot presses along its tilted tool axis, so the shear is Fz * tan(tilt) plus
-noise (robot compliance, friction), clipped to +-shear_max; the simulator caps it at mu * Fz.
+noise (shear_noise * Fz: robot compliance, friction), clipped to +-shear_max; the simulator caps it at
+mu * Fz. The train, val and unseen splits are pressed on data.train_sensor; every sensor of
+sim.SENSOR_NAMES gets a Table II and a calibration split.
 
 Deterministic from cfg["seed"]: every split has its own random stream and its own block of render
 seeds (train, val and test seeds are disjoint). Each shard is written atomically (temp file, fsync,
@@ -42,14 +44,22 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from ffjax.sim.sensors import MINI_NAMES, SENSOR_NAMES, get_sensor
+
 VERSION = 1
-# Generation knobs (cfg["data"]); the last three have defaults here so presets need not list them.
+# Generation knobs (cfg["data"]): every one decides the bytes on disk
 GEN_KEYS = ("render_size", "train_per_indenter", "val_per_indenter", "unseen_per_object",
             "sensor_test_per_indenter", "calib_samples", "fz_max", "shear_max", "shard_size")
-DEFAULTS = {"fz_min": 0.05, "tilt_max_deg": 7.0, "shear_noise": 0.06}
+# Knobs that were constants here before they were config keys (configs/base.py holds the same defaults): a
+# config without them (an older model.json) means these values. fz_min, tilt_max_deg and shear_noise were
+# always part of a folder's config.json; the others enter it only when they differ from these values, so
+# every folder written before they were keys stays valid.
+BEFORE_KEYS = {"fz_min": 0.05, "tilt_max_deg": 7.0, "shear_noise": 0.06}
+TRAIN_SENSOR = "mini-1-gel1"  # data.train_sensor before it was a key
+_SENSORS_BEFORE = tuple(f"mini-{u}-gel{g}" for u in (1, 2, 3) for g in (1, 2, 3)) + ("digit",)
 CALIB_SHAPE = "sphere_big"
-MINI_KEYS = tuple(f"mini-{u}-gel{g}" for u in (1, 2, 3) for g in (1, 2, 3))
-SENSOR_KEYS = MINI_KEYS + ("digit",)
+SENSOR_KEYS = SENSOR_NAMES  # every sensor gets a Table II split and a calibration split
+MINI_KEYS = tuple(k for k in SENSOR_NAMES if get_sensor(k).name in MINI_NAMES)
 # Shards are stored uncompressed: camera noise and the smooth depth tails left deflate at ~0.9 of the
 # size for 5x the write time, and stored members load faster.
 COMPRESS = False
@@ -59,7 +69,7 @@ _OURS = ("config.json", "manifest.json", "train", "val", "unseen", "sensor", "ca
 @dataclasses.dataclass(frozen=True)
 class SplitSpec:
     name: str  # "train", "unseen/banana", "sensor/mini-2-gel3", "calib/digit", ...
-    sensor: str  # a sensor key: "mini-1-gel1" .. "mini-3-gel3", "digit"
+    sensor: str  # a key of sim.SENSOR_NAMES: "mini-1-gel1" .. "mini-3-gel3", "digit"
     shapes: tuple[str, ...]
     per_shape: int
     index: int  # fixed position in the list of all splits: selects the random stream and seed block
@@ -80,11 +90,11 @@ def split_specs(cfg: dict) -> list[SplitSpec]:
     from ffjax import sim
 
     d = cfg["data"]
+    train = d.get("train_sensor", TRAIN_SENSOR)
     ind = tuple(sim.INDENTERS)
     table2 = tuple(s for s in ind if s != CALIB_SHAPE)
-    specs = [("train", "mini-1-gel1", ind, d["train_per_indenter"]),
-             ("val", "mini-1-gel1", ind, d["val_per_indenter"])]
-    specs += [(f"unseen/{o}", "mini-1-gel1", (o,), d["unseen_per_object"]) for o in sim.UNSEEN_OBJECTS]
+    specs = [("train", train, ind, d["train_per_indenter"]), ("val", train, ind, d["val_per_indenter"])]
+    specs += [(f"unseen/{o}", train, (o,), d["unseen_per_object"]) for o in sim.UNSEEN_OBJECTS]
     specs += [(f"sensor/{k}", k, table2, d["sensor_test_per_indenter"]) for k in SENSOR_KEYS]
     specs += [(f"calib/{k}", k, (CALIB_SHAPE,), d["calib_samples"]) for k in SENSOR_KEYS]
     return [SplitSpec(n, s, sh, int(p), i) for i, (n, s, sh, p) in enumerate(specs)]
@@ -93,7 +103,11 @@ def split_specs(cfg: dict) -> list[SplitSpec]:
 def gen_config(cfg: dict) -> dict:
     """What determines the bytes on disk (JSON-normalized): compared on every rerun."""
     d = cfg["data"]
-    data = {k: d[k] for k in GEN_KEYS} | {k: d.get(k, v) for k, v in DEFAULTS.items()}
+    data = {k: d[k] for k in GEN_KEYS} | {k: d.get(k, v) for k, v in BEFORE_KEYS.items()}
+    if d.get("train_sensor", TRAIN_SENSOR) != TRAIN_SENSOR:
+        data["train_sensor"] = d["train_sensor"]
+    if SENSOR_KEYS != _SENSORS_BEFORE:  # a sensor added (or removed) changes the splits and their seeds
+        data["sensors"] = list(SENSOR_KEYS)
     return json.loads(json.dumps({"version": VERSION, "seed": int(cfg["seed"]), "data": data}))
 
 
@@ -105,12 +119,6 @@ def sim_fingerprint() -> str:
     for f in sorted(Path(__file__).parent.glob("*.py")):
         h.update(f.name.encode() + f.read_bytes())
     return h.hexdigest()[:16]
-
-
-def _sensor(key: str):
-    from ffjax import sim
-
-    return sim.get_sensor(key)
 
 
 def render_size(sensor, size) -> tuple[int, int]:
@@ -125,7 +133,7 @@ def safe_region(shape_name: str, sensor_key: str, fz_max: float) -> tuple[float,
     (0.9 of it), but never less than a fifth of the half pad (large objects overhang anyway)."""
     from ffjax import sim
 
-    shape, sensor = sim.get_shape(shape_name), _sensor(sensor_key)
+    shape, sensor = sim.get_shape(shape_name), get_sensor(sensor_key)
     try:
         pen = sim.press(shape, sensor, (0.0, 0.0, fz_max), size=(24, 32), noise=False).meta["penetration_mm"]
     except ValueError:  # the gel cannot take fz_max centred: use the deepest press it allows
@@ -187,7 +195,7 @@ def render_shard(spec: SplitSpec, p: dict, lo: int, hi: int, size) -> dict:
     """Render presses [lo, hi) of a split (already sampled): the shard's arrays."""
     from ffjax import sim
 
-    sensor = _sensor(spec.sensor)
+    sensor = get_sensor(spec.sensor)
     size = render_size(sensor, size)
     n = hi - lo
     H, W = size
@@ -334,7 +342,7 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
         for stale in folder.glob(".*.tmp*"):  # leftovers of a killed run
             stale.unlink()
         bounds = [(a, min(a + shard, spec.count)) for a in range(0, spec.count, shard)]
-        sensor = _sensor(spec.sensor)
+        sensor = get_sensor(spec.sensor)
         info = {"name": spec.name, "sensor": spec.sensor, "sensor_name": sensor.name, "gel": sensor.gel_id,
                 "shapes": list(spec.shapes), "per_shape": spec.per_shape, "count": spec.count,
                 "shard_counts": [b - a for a, b in bounds], "render_size": list(render_size(sensor, size)),

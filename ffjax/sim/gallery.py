@@ -69,8 +69,9 @@ def make(out: str, size=None) -> list[str]:
     paths.append(_grid(samples, [_label(n) for n in names], os.path.join(out, "shapes.png")))
 
     sensors = [get_sensor(k) for k in SENSOR_NAMES]
-    samples = [press("cross", s, force=(0.5, 0.0, 6.0), seed=i, size=size if s.name != "digit" else None)
-               for i, s in enumerate(sensors)]
+    # portrait sensors (DIGIT) at their native size
+    samples = [press("cross", s, force=(0.5, 0.0, 6.0), seed=i, size=size if s.native_size[0] < s.native_size[1]
+                     else None) for i, s in enumerate(sensors)]
     paths.append(_grid(samples, [s.key for s in sensors], os.path.join(out, "sensors.png")))
 
     fz = [0.0, 0.5, 1.5, 3.0, 5.0, 7.5, 10.0, 12.5, 15.0, 15.0]

@@ -3,6 +3,8 @@ LEDs (direction from each pixel to the LED, colour, inverse-square falloff), pig
 texture and markers (warped by shear), uneven pad, vignetting, blur, camera noise, uint8.
 
 Per-(sensor, size) tables (light directions, falloff, albedo, gain) are built once and cached.
+`sensor` is a sensors.Sensor; this module does not import sensors.py (Sensor.background calls into it), so
+the imports run one way: sensors -> optics.
 """
 
 from __future__ import annotations
@@ -13,8 +15,6 @@ import zlib
 
 import cv2
 import numpy as np
-
-from ffjax.sim.sensors import Sensor
 
 
 @dataclasses.dataclass
@@ -42,7 +42,7 @@ def _seed(*parts) -> int:
     return zlib.crc32("/".join(map(str, parts)).encode())
 
 
-def grid(sensor: Sensor, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def grid(sensor, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """Pixel-centre coordinates (X, Y) in mm of a render of `size`, origin at the pad centre."""
     H, W = size
     dy, dx = sensor.mm_per_px(size)
@@ -53,7 +53,7 @@ def grid(sensor: Sensor, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]
 
 
 @functools.lru_cache(maxsize=64)
-def tables(sensor: Sensor, size: tuple[int, int]) -> Tables:
+def tables(sensor, size: tuple[int, int]) -> Tables:
     H, W = size
     X, Y = grid(sensor, size)
     dy, dx = sensor.mm_per_px(size)
@@ -137,7 +137,7 @@ def _window(mask: np.ndarray, margin: int) -> tuple[slice, slice] | None:
             slice(max(cols[0] - margin, 0), min(cols[-1] + margin + 1, W)))
 
 
-def render(sensor: Sensor, size: tuple[int, int], depth: np.ndarray, disp_px: np.ndarray | None = None,
+def render(sensor, size: tuple[int, int], depth: np.ndarray, disp_px: np.ndarray | None = None,
            seed: int | None = 0) -> np.ndarray:
     """uint8 (H, W, 3) frame of the gel with surface displacement `depth` (mm, + = into the gel) and the
     pigment moved by disp_px (H, W, 2) pixels; camera noise from `seed` (None = no noise)."""
@@ -171,12 +171,12 @@ def render(sensor: Sensor, size: tuple[int, int], depth: np.ndarray, disp_px: np
 
 
 @functools.lru_cache(maxsize=64)
-def _background(sensor: Sensor, size: tuple[int, int], noise: bool) -> np.ndarray:
+def _background(sensor, size: tuple[int, int], noise: bool) -> np.ndarray:
     H, W = size
     img = render(sensor, size, np.zeros((H, W), np.float32), None, _seed("bg", sensor.key) if noise else None)
     img.setflags(write=False)
     return img
 
 
-def background(sensor: Sensor, size: tuple[int, int], noise: bool = True) -> np.ndarray:
+def background(sensor, size: tuple[int, int], noise: bool = True) -> np.ndarray:
     return _background(sensor, tuple(int(s) for s in size), bool(noise)).copy()

@@ -3,14 +3,19 @@
 Units differ the way real ones do: LED placement, colour mix and brightness (the camera side), and
 gel stiffness, thickness and markers (the gel side). Lengths in mm, moduli in MPa (= N/mm^2).
 Image axes: x to the right (columns), y down (rows); the pad centre is (0, 0).
+
+`PRESETS` (key -> Sensor) is the one list of sensors: SENSOR_NAMES, sim.get_sensor, the dataset's per-sensor
+splits and the config's data.train_sensor check all read it. A new sensor is one entry there (a new
+GelSight Mini unit: one entry in _MINIS, which gives it every gel).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import numpy as np
+
+from ffjax.sim import optics
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,10 +56,12 @@ class Sensor:
     dome_radius_mm: float | None = None  # DIGIT's curved gel; None = flat pad
     unevenness: float = 0.06  # low-frequency albedo variation of the pad (non-uniform background)
     falloff: float = 1.0  # LED irradiance ~ distance^-falloff (1: light guides spread it; 2: bare LED)
+    one_gel: bool = False  # the gel is part of the sensor (DIGIT): its key is its name, without "-gel<id>"
 
     @property
     def key(self) -> str:
-        return self.name if self.name == "digit" else f"{self.name}-gel{self.gel_id}"
+        """Its name in SENSOR_NAMES: "mini-2-gel3", "digit"."""
+        return self.name if self.one_gel else f"{self.name}-gel{self.gel_id}"
 
     @property
     def fov_mm(self) -> tuple[float, float]:
@@ -76,8 +83,6 @@ class Sensor:
     def background(self, size: tuple[int, int] | None = None, noise: bool = True) -> np.ndarray:
         """The no-contact frame, uint8 (H, W, 3). With noise it is one fixed recorded frame (seeded by the
         sensor's name), the same every call; a press frame gets its own independent noise."""
-        from ffjax.sim import optics
-
         return optics.background(self, tuple(size or self.native_size), noise)
 
 
@@ -117,31 +122,39 @@ _MINIS = {
     ),
 }
 
+
+def _mini(unit: str, gel: int) -> Sensor:
+    return Sensor(name=unit, gel_id=gel, gel=GELS[gel], native_size=(240, 320), native_mm_per_px=_MINI_MM_PER_PX,
+                  **_MINIS[unit])
+
+
+# Every sensor by key: each GelSight Mini unit with each gel, and DIGIT with its own domed gel.
+PRESETS: dict[str, Sensor] = {f"{unit}-gel{gel}": _mini(unit, gel) for unit in _MINIS for gel in GELS} | {
+    "digit": Sensor(
+        name="digit", gel_id=1, gel=DIGIT_GEL, native_size=(320, 240), native_mm_per_px=0.0625,
+        # three RGB LEDs 120 degrees apart, closer to the gel and brighter at short range
+        leds=(LED(90, 4.0, (1.0, 0.15, 0.1), 1.2, 14.0), LED(210, 4.0, (0.1, 1.0, 0.15), 1.2, 14.0),
+              LED(330, 4.0, (0.1, 0.2, 1.0), 1.3, 14.0)),
+        ambient=(0.06, 0.06, 0.07), albedo=(0.8, 0.8, 0.8), brightness=120.0, vignette=0.4, blur_px=1.2,
+        noise_std=4.0, dome_radius_mm=60.0, unevenness=0.08, falloff=1.6, one_gel=True,
+    ),
+}
 MINI_NAMES = tuple(_MINIS)
-SENSORS: tuple[tuple[str, int], ...] = tuple((n, g) for n in MINI_NAMES for g in GELS) + (("digit", 1),)
-SENSOR_NAMES: tuple[str, ...] = tuple(f"{n}-gel{g}" for n in MINI_NAMES for g in GELS) + ("digit",)
+SENSOR_NAMES: tuple[str, ...] = tuple(PRESETS)
+SENSORS: tuple[tuple[str, int], ...] = tuple((s.name, s.gel_id) for s in PRESETS.values())
 
 
-@functools.cache
 def get_sensor(name: str, gel: int = 1) -> Sensor:
-    """A sensor preset: "mini-1".."mini-3" with gel 1..3, or "digit" (its own domed gel; gel must be 1).
-    Also accepts the combined keys of SENSOR_NAMES, e.g. "mini-2-gel3"."""
-    if name.startswith("mini-") and "-gel" in name:
-        name, gel = name.split("-gel")[0], int(name.split("-gel")[1])
-    if name == "digit":
-        if gel != 1:
-            raise ValueError(f"digit has one (domed) gel; got gel={gel}")
-        return Sensor(
-            name="digit", gel_id=1, gel=DIGIT_GEL, native_size=(320, 240), native_mm_per_px=0.0625,
-            # three RGB LEDs 120 degrees apart, closer to the gel and brighter at short range
-            leds=(LED(90, 4.0, (1.0, 0.15, 0.1), 1.2, 14.0), LED(210, 4.0, (0.1, 1.0, 0.15), 1.2, 14.0),
-                  LED(330, 4.0, (0.1, 0.2, 1.0), 1.3, 14.0)),
-            ambient=(0.06, 0.06, 0.07), albedo=(0.8, 0.8, 0.8), brightness=120.0, vignette=0.4, blur_px=1.2,
-            noise_std=4.0, dome_radius_mm=60.0, unevenness=0.08, falloff=1.6,
-        )
-    if name not in _MINIS:
-        raise ValueError(f"unknown sensor {name!r}; choose from {list(MINI_NAMES) + ['digit']}")
-    if gel not in GELS:
-        raise ValueError(f"unknown gel {gel!r} for {name}; choose from {list(GELS)}")
-    return Sensor(name=name, gel_id=gel, gel=GELS[gel], native_size=(240, 320),
-                  native_mm_per_px=_MINI_MM_PER_PX, **_MINIS[name])
+    """A sensor preset by unit and gel ("mini-1".."mini-3" with gel 1..3; "digit", gel 1) or by its key in
+    SENSOR_NAMES ("mini-2-gel3", "digit")."""
+    if name in PRESETS:
+        if gel != 1 and PRESETS[name].one_gel:
+            raise ValueError(f"{name} has one gel of its own; got gel={gel}")
+        return PRESETS[name]
+    if f"{name}-gel{gel}" in PRESETS:
+        return PRESETS[f"{name}-gel{gel}"]
+    units = list(dict.fromkeys(s.name for s in PRESETS.values()))
+    if name not in units:
+        raise ValueError(f"unknown sensor {name!r}; choose from {units} or a key of {list(SENSOR_NAMES)}")
+    gels = [s.gel_id for s in PRESETS.values() if s.name == name]
+    raise ValueError(f"unknown gel {gel!r} for {name}; choose from {gels}")
