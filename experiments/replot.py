@@ -47,7 +47,7 @@ def replot(folder) -> str:
         pareto.write_all({**results, "markdown": pareto.markdown(results)}, folder)
         return "pareto"
     if "models" in results and "scaling" in results:
-        from experiments import bench_report
+        from experiments.bench import report as bench_report
 
         bench_report.plots(results, folder)  # the figures only: report.md is tied to the bench version that ran
         return "bench"

@@ -8,7 +8,9 @@ import shutil
 
 import pytest
 
-from experiments import bench, bench_jax, bench_report
+from experiments.bench import jax_step as bench_jax
+from experiments.bench import report as bench_report
+from experiments.bench import suite as bench
 
 TINY = {
     "name": "test",

@@ -1,7 +1,7 @@
 """Data-parallel train step on N virtual CPU devices vs one device, in one process.
 
 Run by `experiments.bench` as a subprocess (the device count is fixed when jax starts):
-    XLA_FLAGS=--xla_force_host_platform_device_count=8 python -m experiments.bench_dp '{"preset": "quick"}'
+    XLA_FLAGS=--xla_force_host_platform_device_count=8 python -m experiments.bench.dp '{"preset": "quick"}'
 prints one JSON line: ms per step on the 1-device and the N-device mesh, and the loss difference.
 """
 
@@ -13,7 +13,7 @@ import sys
 import jax
 import numpy as np
 
-from experiments.bench_jax import case_cfg, fake_batch, median_ms
+from experiments.bench.jax_step import case_cfg, fake_batch, median_ms
 from ffjax import registry, train
 
 

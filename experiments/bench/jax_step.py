@@ -52,7 +52,7 @@ def case_cfg(preset: str, overrides: dict | None = None, vit: str | None = None)
 
 
 def arch_of(cfg: dict, method: str, size: int) -> dict:
-    """The architecture as plain data, for the torch side (experiments.bench_torch.ForceModel)."""
+    """The architecture as plain data, for the torch side (experiments.bench.torch_twin.ForceModel)."""
     spec = registry.get(method)
     m = cfg["model"]
     return {

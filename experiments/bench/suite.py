@@ -3,7 +3,7 @@
     python -m experiments.bench [--quick] [--device auto|cpu|gpu] [--out DIR] [--torch-python PYTHON]
 
 Writes DIR/results.json (every number, commit, machine, steal/load per section), DIR/report.md (every
-ratio) and PNG plots. The PyTorch side (experiments/bench_torch.py) runs in this interpreter when torch
+ratio) and PNG plots. The PyTorch side (experiments/bench/torch_twin.py) runs in this interpreter when torch
 imports here, else under --torch-python as a subprocess (optional extra: `pip install torch==2.13.0`);
 without either it is skipped and said so. Times are medians over rounds after compilation and warm-up;
 the VMs here lose CPU to neighbours, so compare only ratios taken in one run (steal is recorded).
@@ -22,7 +22,7 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-from experiments import bench_jax as bj
+from experiments.bench import jax_step as bj
 from experiments.common import ROOT, git_commit, write_json, write_text
 
 # What each mode measures: (preset, method, input size, train batch, infer batches, overrides, vit preset).
@@ -131,19 +131,20 @@ class Section:
 
 # ---------------------------------------------------------------- torch side
 class TorchSide:
-    """bench_torch in-process when torch imports here, else a `--serve` subprocess under torch_python."""
+    """torch_twin in-process when torch imports here, else a `--serve` subprocess under torch_python."""
 
     def __init__(self, torch_python: str | None = None, device: str = "cpu"):
         self.proc, self.local, self.why, self.device = None, None, None, device
         try:
-            from experiments import bench_torch
+            from experiments.bench import torch_twin
 
-            self.local = bench_torch
+            self.local = torch_twin
         except ImportError:
             if torch_python:
                 env = {**os.environ, "OMP_NUM_THREADS": "2", "PYTHONPATH": str(ROOT)}
-                self.proc = subprocess.Popen([torch_python, str(ROOT / "experiments" / "bench_torch.py"), "--serve"],
-                                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+                twin = ROOT / "experiments" / "bench" / "torch_twin.py"
+                self.proc = subprocess.Popen([torch_python, str(twin), "--serve"], stdin=subprocess.PIPE,
+                                             stdout=subprocess.PIPE, text=True, env=env)
             else:
                 self.why = "torch not importable here and no --torch-python given"
         self.info = self.ask({"op": "info"}) if self.available else None
@@ -254,7 +255,7 @@ def run_dp(plan: dict) -> dict:
     env = {**os.environ, "XLA_FLAGS": (os.environ.get("XLA_FLAGS", "") +
                                        " --xla_force_host_platform_device_count=8").strip()}
     arg = json.dumps({"preset": "quick", "method": "dino_rd", **dp})
-    p = subprocess.run([sys.executable, "-m", "experiments.bench_dp", arg], env=env, capture_output=True,
+    p = subprocess.run([sys.executable, "-m", "experiments.bench.dp", arg], env=env, capture_output=True,
                        text=True, cwd=ROOT, timeout=900)
     if p.returncode != 0:
         return {"error": p.stderr[-2000:]}
@@ -262,7 +263,7 @@ def run_dp(plan: dict) -> dict:
 
 
 def run_data(plan: dict, res: dict, main_case: dict, tmp: Path) -> None:
-    from experiments import bench_data as bd
+    from experiments.bench import loop as bd
     from ffjax import data
 
     sim = plan["sim"]
@@ -284,10 +285,10 @@ def run_data(plan: dict, res: dict, main_case: dict, tmp: Path) -> None:
 
 
 def run_loop(plan: dict, src, size: int, batch: int) -> dict:
-    """Loop efficiency (bench_data.loop_efficiency) for each train.val_every of the plan, `rounds` times,
+    """Loop efficiency (loop.loop_efficiency) for each train.val_every of the plan, `rounds` times,
     the rounds of the settings interleaved so load changes weigh on all; the median round is reported,
     every round's figures beside it."""
-    from experiments import bench_data as bd
+    from experiments.bench import loop as bd
 
     lp, case = plan["loop"], plan["cases"]["quick_vit"]
     runs: dict = {v: [] for v in lp["val_every"]}
@@ -306,8 +307,8 @@ def run_loop(plan: dict, src, size: int, batch: int) -> dict:
 
 def bf16_methods(plan: dict, src) -> dict:
     """bfloat16 against float32 for every registry method (and dino_rd with the paper's decoder): the train
-    step's speed on the main case (timed interleaved, bench_jax.paired_ms) and the validation loss after the
-    same short run from the same init (bench_jax.bf16_accuracy, the plan's bf16_acc sizes)."""
+    step's speed on the main case (timed interleaved, jax_step.paired_ms) and the validation loss after the
+    same short run from the same init (jax_step.bf16_accuracy, the plan's bf16_acc sizes)."""
     from ffjax import data, registry
 
     case, acc = plan["cases"]["quick_vit"], plan["bf16_acc"]
@@ -343,8 +344,8 @@ ONLY = {"loop": "the training loop against its own step", "bf16": "bfloat16 agai
 def run_only(part: str, mode: str | dict, out: str | Path | None = None, log=print) -> dict:
     """One part of `mode` (a PLANS name or a plan dict with a "name") on its own (`--only loop|bf16`), on a
     split the simulator renders: results.json and report.md in results/bench-<part>-<mode>."""
-    from experiments import bench_data as bd
-    from experiments import bench_report
+    from experiments.bench import loop as bd
+    from experiments.bench import report as bench_report
     from ffjax import data
 
     plan, t_start = (PLANS[mode] if isinstance(mode, str) else mode), time.perf_counter()
@@ -468,7 +469,7 @@ def run(mode: str | dict = "quick", out: str | Path | None = None, torch_python:
     res["wall_s"] = time.perf_counter() - t_start
     res["load_end"] = list(os.getloadavg())
     write_json(out / "results.json", res)
-    from experiments import bench_report
+    from experiments.bench import report as bench_report
 
     res["plots"] = bench_report.plots(res, out)
     write_text(out / "report.md", bench_report.report(res))
@@ -479,7 +480,7 @@ def run(mode: str | dict = "quick", out: str | Path | None = None, torch_python:
 
 def ratios(res: dict) -> dict:
     """Every headline ratio, flat: name -> float (>1 means the first-named side is faster/larger)."""
-    from experiments.bench_report import collect_ratios
+    from experiments.bench.report import collect_ratios
 
     return collect_ratios(res)
 

@@ -1,7 +1,7 @@
 """The PyTorch side of `experiments.bench`: the same architectures as ffjax, timed the same way.
 
 Self-contained (torch + numpy only, no ffjax import) so it also runs as a subprocess under another
-interpreter: `python experiments/bench_torch.py --serve` answers one JSON request per stdin line with one
+interpreter: `python experiments/bench/torch_twin.py --serve` answers one JSON request per stdin line with one
 JSON line (requests: {"op": "info"}, {"op": "peak", "n": 2048}, {"op": "train"|"infer", "arch": {...},
 "batch": B, "warmup": w, "steps": k, "rounds": r}; any request may add "device": "cuda" and, for train/infer,
 "compile": true for torch.compile). `arch` is what `experiments.bench.arch_of` writes:

@@ -14,7 +14,6 @@ from .heads import (
     WeightNormDense,
     count_params,
     decoder_from_config,
-    measure_decoders,
     output_affine,
     regressor_from_config,
 )
@@ -38,7 +37,6 @@ __all__ = [
     "count_params",
     "decoder_from_config",
     "interpolate_pos_embed",
-    "measure_decoders",
     "output_affine",
     "regressor_from_config",
     "vit_config",

@@ -1,0 +1,3 @@
+from experiments.bench.suite import main
+
+main()
