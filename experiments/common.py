@@ -1,4 +1,5 @@
-"""What every experiment shares: config/CLI plumbing, cached stages, run provenance, atomic writes."""
+"""What every experiment shares: config/CLI plumbing, cached stages, run provenance, and (from ffjax.results)
+tables, atomic writes and figure stamps."""
 
 from __future__ import annotations
 
@@ -6,16 +7,16 @@ import argparse
 import functools
 import hashlib
 import json
-import os
 import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 import configs
+
+# re-exported: the experiments write their tables and files through common
+from ffjax.results import fmt, md_table, mean_std, read_json, stamp, write_csv, write_json, write_text  # noqa: F401
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -91,37 +92,6 @@ def fingerprint(*parts) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def write_json(path, obj) -> None:
-    """Write JSON atomically (tmp + fsync + rename): a kill never leaves a half-written results file."""
-    write_text(path, json.dumps(obj, indent=1, default=_jsonable))
-
-
-def write_text(path, text: str) -> None:
-    """Write text atomically: the old file or the new one survives a kill or a full disk, never a part."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        with open(tmp, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except OSError:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
-def stamp(fig, preset: str, seeds, commit: str) -> None:
-    """Print what a figure was made from in its corner (preset, seeds, commit), and say so when the preset's
-    numbers mean nothing: a PNG copied into a notebook keeps its provenance. No seeds (a simulator-only check
-    trains nothing): none shown."""
-    text = f"ffjax · preset {preset}" + (f" · seeds {list(seeds)}" if seeds else "") + f" · commit {str(commit)[:7]}"
-    if preset == "smoke":
-        text += " · SMOKE PRESET: plumbing check, numbers meaningless"
-    fig.text(0.995, 0.005, text, ha="right", va="bottom", fontsize=7, color="0.35")
-
-
 def place_labels(ax, xs, ys, texts, fontsize: float = 7) -> None:
     """Annotate points without labels on top of each other: each label takes the first of a few offsets
     (right, below, left, above ...) whose box misses the boxes placed before it. Call after the axes' scales
@@ -140,21 +110,6 @@ def place_labels(ax, xs, ys, texts, fontsize: float = 7) -> None:
                 break
         placed.append(box)
         ax.annotate(text, (x, y), xytext=(dx, dy), textcoords="offset pixels", fontsize=fontsize)
-
-
-def read_json(path):
-    path = Path(path)
-    return json.loads(path.read_text()) if path.is_file() else None
-
-
-def _jsonable(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (tuple, set)):
-        return list(o)
-    return str(o)
 
 
 def ensure_data(cfg: dict, data_dir=None, force: bool = False, progress: bool = True) -> Path:
@@ -194,36 +149,3 @@ class Stage:
     def finish(self, **extra) -> None:
         write_json(self.file, {"key": self.key, "status": "done", "finished": time.time(), **extra})
         self.done = True
-
-
-def mean_std(values) -> dict:
-    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], np.float64)
-    if len(v) == 0:
-        return {"mean": float("nan"), "std": float("nan"), "n": 0}
-    return {"mean": float(v.mean()), "std": float(v.std(ddof=1)) if len(v) > 1 else 0.0, "n": int(len(v))}
-
-
-def fmt(ms: dict | None, digits: int = 1) -> str:
-    """'4.2 ± 0.3' (or '4.2' for one seed) from a mean_std dict."""
-    if not ms or not np.isfinite(ms.get("mean", float("nan"))):
-        return "–"
-    if ms.get("n", 1) > 1:
-        return f"{ms['mean']:.{digits}f} ± {ms['std']:.{digits}f}"
-    return f"{ms['mean']:.{digits}f}"
-
-
-def md_table(header: list[str], rows: list[list[str]]) -> str:
-    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
-    return "\n".join(out) + "\n"
-
-
-def write_csv(path, header: list[str], rows: list[list]) -> None:
-    import csv
-    import io
-
-    buf = io.StringIO()
-    w = csv.writer(buf)
-    w.writerow(header)
-    w.writerows(rows)
-    write_text(path, buf.getvalue())

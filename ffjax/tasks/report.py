@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ffjax import results
 from ffjax.tasks import grasping, pushing
 
 PERFECT = "perfect"
@@ -33,38 +34,31 @@ def _paper_name(method: str) -> str:
         return method
 
 
-def _common():
-    from experiments import common  # the experiment helpers (md tables, atomic writes)
-
-    return common
-
-
 def _v(ms) -> float:
     return ms["mean"] if isinstance(ms, dict) else float(ms)
 
 
 def stamp(fig, res: dict) -> None:
     """The figure's provenance in its corner (preset, the checkpoints' training seeds, commit): see
-    experiments.common.stamp."""
+    ffjax.results.stamp."""
     import re
 
     seeds = sorted({int(m.group(1)) for runs in res.get("checkpoints", {}).values() for r in runs
                     if (m := re.search(r"seed(\d+)$", str(r)))})
-    _common().stamp(fig, res.get("preset", "?"), seeds or ["?"], res.get("commit", "?"))
+    results.stamp(fig, res.get("preset", "?"), seeds or ["?"], res.get("commit", "?"))
 
 
 def table4_md(res: dict) -> str:
-    c = _common()
     push = res["pushing"]
     m = res["main_method"]
     objs = pushing.OBJECTS
     head = ["weight [kg]", *[o.label for o in objs]]
     tab = push["table"][m]
-    rows = [[label, *[f"{c.fmt(tab[o.name][k], d)} ({o.paper[k]:g})" for o in objs]] for k, label, d in ROWS]
-    extra = [[label, *[c.fmt(tab[o.name][k], d) for o in objs]] for k, label, d in EXTRA]
+    rows = [[label, *[f"{results.fmt(tab[o.name][k], d)} ({o.paper[k]:g})" for o in objs]] for k, label, d in ROWS]
+    extra = [[label, *[results.fmt(tab[o.name][k], d) for o in objs]] for k, label, d in EXTRA]
     perf = push["table"][PERFECT]
     extra.append(
-        ["Weight error, perfect tactile sensor [kg]", *[c.fmt(perf[o.name]["weight_error"], 3) for o in objs]]
+        ["Weight error, perfect tactile sensor [kg]", *[results.fmt(perf[o.name]["weight_error"], 3) for o in objs]]
     )
     out = [
         f"# Table IV: weighing by pushing ({res['preset']} preset, {m}; the paper's values in brackets)\n",
@@ -72,9 +66,9 @@ def table4_md(res: dict) -> str:
         f"{res['push_config']['fps']:g} fps (camera 25 fps), averaged over the constant-velocity phase; "
         "mu fitted from the reference sensor with the known mass (mu = f_ref / m g), "
         "weight = f_est / (mu g).\n",
-        c.md_table(head, rows),
+        results.md_table(head, rows),
         "\nDiagnostics (not in the paper):\n",
-        c.md_table(head, extra),
+        results.md_table(head, extra),
     ]
     # every method
     methods = [k for k in push["table"] if k != PERFECT] + [PERFECT]
@@ -85,27 +79,27 @@ def table4_md(res: dict) -> str:
             [
                 meth,
                 *[
-                    f"{c.fmt(t[o.name]['force_error'], 2)} / {c.fmt(t[o.name]['weight_error'], 3)}"
+                    f"{results.fmt(t[o.name]['force_error'], 2)} / {results.fmt(t[o.name]['weight_error'], 3)}"
                     for o in objs
                 ],
-                c.fmt(_pct(t["mean"]["weight_error_rel"]), 1),
+                results.fmt(_pct(t["mean"]["weight_error_rel"]), 1),
             ]
         )
     out += [
         "\n## Every method: force error [N] / weight error [kg]\n",
         "(`perfect` = the tactile estimate is the true force: what remains is the drifting reference "
         "and the table.)\n",
-        c.md_table(["method", *[o.label for o in objs], "mean weight error %"], mrows),
+        results.md_table(["method", *[o.label for o in objs], "mean weight error %"], mrows),
     ]
     # duration sweep
     durs = push["durations"]
     drows = [
-        [meth, *[c.fmt(_pct(push["sweep"][meth][str(T)]["mean"]["weight_error_rel"]), 1) for T in durs]]
+        [meth, *[results.fmt(_pct(push["sweep"][meth][str(T)]["mean"]["weight_error_rel"]), 1) for T in durs]]
         for meth in methods
     ]
     out += [
         "\n## Push duration: mean weight error % over the four objects\n",
-        c.md_table(["method", *[f"{T:g} s" for T in durs]], drows),
+        results.md_table(["method", *[f"{T:g} s" for T in durs]], drows),
     ]
     return "".join(out)
 
@@ -115,7 +109,6 @@ def _pct(ms: dict) -> dict:
 
 
 def grasping_md(res: dict) -> str:
-    c = _common()
     g = res["grasping"]["summary"]
     m = res["main_method"]
     cup = res["cup"]
@@ -134,17 +127,17 @@ def grasping_md(res: dict) -> str:
         rows.append(
             [
                 f"{T:g}",
-                f"{c.fmt(t['deformation_pct'], 2)} ({p['true']})",
-                f"{c.fmt(e['deformation_pct'], 2)} ({p['est']})",
-                c.fmt(e["abs_deformation_error_pct"], 2),
-                c.fmt(t["overshoot_n"], 3),
-                c.fmt(t["step_increment_n"], 3),
-                c.fmt(e["overshoot_n"], 2),
+                f"{results.fmt(t['deformation_pct'], 2)} ({p['true']})",
+                f"{results.fmt(e['deformation_pct'], 2)} ({p['est']})",
+                results.fmt(e["abs_deformation_error_pct"], 2),
+                results.fmt(t["overshoot_n"], 3),
+                results.fmt(t["step_increment_n"], 3),
+                results.fmt(e["overshoot_n"], 2),
                 f"{100 * e['reached']:.0f}%",
             ]
         )
     out.append(
-        c.md_table(
+        results.md_table(
             [
                 "target [N]",
                 "deformation % true force (paper)",
@@ -169,12 +162,12 @@ def grasping_md(res: dict) -> str:
                 f"{f.firm_n:.2f}",
                 f"{100 * t['gentle']['success']:.0f}% / {100 * e['gentle']['success']:.0f}%",
                 f"{100 * t['firm']['success']:.0f}% / {100 * e['firm']['success']:.0f}%",
-                c.fmt(e["gentle"]["force"], 2),
-                c.fmt(e["firm"]["force"], 2),
+                results.fmt(e["gentle"]["force"], 2),
+                results.fmt(e["firm"]["force"], 2),
             ]
         )
     out.append(
-        c.md_table(
+        results.md_table(
             [
                 "fruit",
                 "gentle [N]",
@@ -196,13 +189,13 @@ def grasping_md(res: dict) -> str:
         mrows.append(
             [
                 meth,
-                *[c.fmt(cu[str(T)]["abs_deformation_error_pct"], 2) for T in cup["targets"]],
-                *[c.fmt(cu[str(T)]["overshoot_n"], 2) for T in cup["targets"]],
+                *[results.fmt(cu[str(T)]["abs_deformation_error_pct"], 2) for T in cup["targets"]],
+                *[results.fmt(cu[str(T)]["overshoot_n"], 2) for T in cup["targets"]],
                 f"{100 * succ:.0f}%",
             ]
         )
     out.append(
-        c.md_table(
+        results.md_table(
             [
                 "method",
                 *[f"abs def. error % @{T:g} N" for T in cup["targets"]],
@@ -216,7 +209,6 @@ def grasping_md(res: dict) -> str:
 
 
 def write_csvs(res: dict, out: Path) -> None:
-    c = _common()
     push = res["pushing"]
     fields = [
         "force_est",
@@ -234,7 +226,7 @@ def write_csvs(res: dict, out: Path) -> None:
         for m in push["table"]
         for o in pushing.OBJECTS
     ]
-    c.write_csv(out / "table4.csv", ["method", "object", "mass", *fields], rows)
+    results.write_csv(out / "table4.csv", ["method", "object", "mass", *fields], rows)
     rows = [
         [
             m,
@@ -247,7 +239,7 @@ def write_csvs(res: dict, out: Path) -> None:
         for T in push["durations"]
         for o in pushing.OBJECTS
     ]
-    c.write_csv(
+    results.write_csv(
         out / "push_duration.csv", ["method", "duration_s", "object", "weight_error", "force_error"], rows
     )
     g = res["grasping"]
@@ -269,7 +261,7 @@ def write_csvs(res: dict, out: Path) -> None:
         for T, rs in c_.items()
         for k, r in enumerate(rs)
     ]
-    c.write_csv(
+    results.write_csv(
         out / "grasp_cup.csv",
         [
             "method",
@@ -293,7 +285,7 @@ def write_csvs(res: dict, out: Path) -> None:
         for mode, rs in modes.items()
         for k, r in enumerate(rs)
     ]
-    c.write_csv(
+    results.write_csv(
         out / "grasp_fruits.csv",
         ["method", "checkpoint", "fruit", "mode", "trial", "stop_step", "force", "success"],
         rows,
@@ -376,17 +368,16 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
 
 
 def write_all(res: dict, out, push_trace: dict | None = None) -> None:
-    c = _common()
     out = Path(out)
     if push_trace is not None:  # kept, so `python -m experiments.replot` can redraw push_force.png
         res["push_trace"] = {k: np.asarray(v).tolist() if isinstance(v, (list, np.ndarray)) else v
                              for k, v in push_trace.items()}
-    c.write_json(out / "results.json", res)
-    c.write_text(out / "table4.md", table4_md(res))
-    c.write_text(out / "grasping.md", grasping_md(res))
+    results.write_json(out / "results.json", res)
+    results.write_text(out / "table4.md", table4_md(res))
+    results.write_text(out / "grasping.md", grasping_md(res))
     write_csvs(res, out)
     res["plots"] = plots(res, out, push_trace)
-    c.write_json(out / "results.json", res)
+    results.write_json(out / "results.json", res)
 
 
 def console_summary(res: dict) -> str:
