@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 
+from .models import BACKBONES
+
 
 @dataclasses.dataclass(frozen=True)
 class Method:
@@ -22,7 +24,7 @@ class Method:
 
     name: str
     paper_name: str
-    backbone: str  # "vit" | "resnet"
+    backbone: str  # a kind of models.BACKBONES: "vit" | "resnet"
     pretrained: bool = True
     frozen_backbone: bool = False
     depth_head: bool = True
@@ -32,8 +34,9 @@ class Method:
     lr_heads_scale: float = 1.0
 
     def __post_init__(self):
-        if self.backbone not in ("vit", "resnet"):
-            raise ValueError(f"{self.name}: backbone must be 'vit' or 'resnet', got {self.backbone!r}")
+        if self.backbone not in BACKBONES:
+            raise ValueError(f"{self.name}: backbone must be one of {', '.join(map(repr, BACKBONES))}, got "
+                             f"{self.backbone!r}")
         if self.beta is None:
             object.__setattr__(self, "beta", 10.0 if self.depth_head else 0.0)
         if not self.depth_head and self.beta != 0:

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ffjax import convert, models
+from ffjax import convert, models, registry
 from ffjax.convert import __main__ as cli
 from ffjax.convert import from_dinov2, from_release, mapping, reader
 from ffjax.models import vit
@@ -135,7 +135,7 @@ def test_release_checkpoint_parity_through_models_build():
         cfg, variables = convert.feelanyforce(FIX / "feelanyforce_tiny.pth.tar", heads=2, depth_channel=channel)
         assert cfg["decoder"] == {"kind": "paper", "channels": (16, 16, 8, 8)}
         assert cfg["regressor"]["widths"] == (32, 16, 16, 8) and cfg["vit"]["pos_grid"] == 5
-        out = models.build(cfg, "dino_rd", 32).apply(variables, jnp.asarray(ref["x"]))
+        out = models.build(cfg, registry.get("dino_rd"), 32).apply(variables, jnp.asarray(ref["x"]))
         _close(out["depth"], ref["depth"][:, channel])
     _close(out["feature"], ref["feature"])
     _close(out["force"], ref["force"])
@@ -210,7 +210,7 @@ def test_release_parity_paper_scale():
     ref = {k: v.astype(np.float32) for k, v in np.load(root / "ref.npz").items()}
     cfg, variables = convert.feelanyforce(root / "checkpoint_v1.pth.tar")
     assert cfg["vit"]["heads"] == 12 and cfg["vit"]["pos_grid"] == 37
-    out = models.build(cfg, "dino_rd", 224).apply(variables, jnp.asarray(ref["x"]))
+    out = models.build(cfg, registry.get("dino_rd"), 224).apply(variables, jnp.asarray(ref["x"]))
     _close(out["feature"], ref["feature"])
     _close(out["force"], ref["force"])
     _close(out["depth"], ref["depth"][:, 0])

@@ -43,11 +43,8 @@ def build_backbone(cfg_model: dict, kind: str, input_size: int) -> nn.Module:
 
 
 def build(cfg_model: dict, spec, input_size: int) -> ForceModel:
-    """Model for a registry Method (or its name) at square input `input_size`."""
-    if isinstance(spec, str):
-        from .. import registry
-
-        spec = registry.get(spec)
+    """Model for a registry Method (`registry.get(name)`; anything with .backbone and .depth_head) at square
+    input `input_size`. Names are the registry's to resolve: models do not import it (it imports BACKBONES)."""
     decoder = heads.decoder_from_config(cfg_model["decoder"], input_size) if spec.depth_head else None
     return ForceModel(
         backbone=build_backbone(cfg_model, spec.backbone, input_size),
