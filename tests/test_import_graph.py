@@ -1,0 +1,149 @@
+"""The import graph of ffjax/, configs/ and experiments/ (read with ast, nothing imported): the library never
+imports the experiments, no modules import each other in a circle, and the experiment kernel's functions stay
+short. Every import counts, function-level ones too: a lazy import still ties the modules together."""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("ffjax", "configs", "experiments")
+MAX_LINES = 80
+# Files whose functions must stay under MAX_LINES (issue 15); ffjax/train joins when its loop is split.
+SHORT_FUNCTIONS = ("experiments/kernel.py",)
+# Circles being removed in issue 15 by other changes, allowed until then (delete an entry when its circle is gone):
+KNOWN_CYCLES = {
+    # the benchmark owner moves measure_decoders (a benchmark) out of heads.py
+    frozenset({"ffjax.models.heads", "ffjax.models.model"}): "measure_decoders in heads.py imports model.py",
+    # the configs owner
+    frozenset({"ffjax.sim.optics", "ffjax.sim.sensors"}): "optics.py and sensors.py import each other",
+    # found by this test, no change assigned yet (all four imports are inside functions): cli imports checkpoint's
+    # error classes, checkpoint.load_checkpoint imports ffjax.data, data.write_csv imports csv_layout, whose main
+    # imports cli
+    frozenset({"ffjax.cli", "ffjax.train.checkpoint", "ffjax.data", "ffjax.data.csv_layout"}):
+        "cli -> train.checkpoint -> data -> data.csv_layout -> cli",
+}
+
+
+def _modules() -> dict[str, Path]:
+    """{dotted name: file} of every module in the three packages (a package is its __init__.py)."""
+    out = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return out
+
+
+def _imported(name: str, path: Path, modules: dict) -> set[str]:
+    """The project modules `name` imports anywhere in its file: `from a.b import c` is a.b.c when that is a
+    module, else a.b; relative imports are resolved against the module's package."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(anchor + ([base] if base else []))
+            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
+        else:
+            continue
+        for t in targets:
+            while t and t not in modules:  # `import a.b.c` of a name inside a module: the module
+                t = t.rpartition(".")[0]
+            if t and t != name:
+                found.add(t)
+    return found
+
+
+@pytest.fixture(scope="module")
+def graph() -> dict[str, set[str]]:
+    modules = _modules()
+    return {name: _imported(name, path, modules) for name, path in modules.items()}
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan), each sorted."""
+    index, low, stack, on_stack, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def _path(graph: dict, comp: list[str]) -> str:
+    """One circle through a component, 'a -> b -> a', for the failure message."""
+    members, start = set(comp), comp[0]
+    trail, seen = [start], {start}
+    while True:
+        nxt = sorted(w for w in graph[trail[-1]] if w in members)
+        back = [w for w in nxt if w == start]
+        if back and len(trail) > 1:
+            return " -> ".join(trail + [start])
+        fresh = [w for w in nxt if w not in seen]
+        if not fresh:  # every successor is on the trail: the circle closes there
+            return " -> ".join(trail[trail.index(nxt[0]):] + [nxt[0]])
+        trail.append(fresh[0])
+        seen.add(fresh[0])
+
+
+def test_the_graph_sees_every_kind_of_import(graph):
+    assert "ffjax.train.checkpoint" in graph["ffjax.train"]  # from-import of a name, package __init__
+    assert "experiments.kernel" in graph["experiments.ablation"]  # `from experiments import kernel`
+    assert "ffjax.train.pretrain" in graph["experiments.kernel"]  # a function-level import of a module
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_the_library_never_imports_the_experiments(graph):
+    up = {m: sorted(t for t in ts if t.split(".")[0] == "experiments") for m, ts in graph.items()
+          if m.split(".")[0] in ("ffjax", "configs")}
+    assert not {m: ts for m, ts in up.items() if ts}, "library modules importing experiments"
+
+
+def test_no_import_cycles(graph):
+    found = [c for c in _cycles(graph) if frozenset(c) not in KNOWN_CYCLES]
+    assert not found, "import circles:\n" + "\n".join(_path(graph, c) for c in found)
+
+
+@pytest.mark.parametrize("cycle", list(KNOWN_CYCLES), ids=lambda c: "-".join(sorted(m.rsplit(".", 1)[1] for m in c)))
+@pytest.mark.xfail(reason="a circle issue 15 removes in another change (see KNOWN_CYCLES)", strict=False)
+def test_known_cycle_is_gone(graph, cycle):
+    assert sorted(cycle) not in _cycles(graph), _path(graph, sorted(cycle))
+
+
+def _long_functions(path: Path) -> list[str]:
+    tree = ast.parse(path.read_text(), str(path))
+    return [f"{path.relative_to(ROOT)}:{n.lineno} {n.name}: {n.end_lineno - n.lineno + 1} lines"
+            for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))
+            and n.end_lineno - n.lineno + 1 > MAX_LINES]
+
+
+@pytest.mark.parametrize("rel", SHORT_FUNCTIONS)
+def test_no_function_over_80_lines(rel):
+    assert not _long_functions(ROOT / rel)
