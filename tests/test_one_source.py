@@ -1,0 +1,134 @@
+"""One source for each closed set (issue 15): a new sensor is one entry in ffjax/sim/sensors.py, a new backbone
+a module, an entry in models.BACKBONES and a config section; the config keys added for knobs the code read
+as constants leave numbers and existing data folders as they were."""
+
+import json
+import sys
+import types
+from pathlib import Path
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import configs
+from configs import base
+from ffjax import models, registry, sim
+from ffjax.sim import dataset, sensors
+
+
+def test_a_new_sensor_is_one_entry_in_sensors_py(monkeypatch):
+    """The worked example of docs/layout.md: sensors.py with one more PRESETS entry (here added to its source
+    and run as a fresh module, as an edit of the file would) names, finds and renders the new sensor."""
+    entry = '''
+PRESETS["toy"] = Sensor(  # a bare-LED sensor with its own gel: two white LEDs, landscape 120x160
+    name="toy", gel_id=1, gel=Gel(young_mpa=0.4, shear_mpa=0.13, thickness_mm=4.0, texture_seed=5),
+    leds=(LED(0, 5.0, (1.0, 1.0, 1.0)), LED(180, 5.0, (1.0, 0.9, 0.8))), native_size=(120, 160),
+    native_mm_per_px=0.12, falloff=2.0, one_gel=True,
+)
+'''
+    src = Path(sensors.__file__).read_text()
+    anchor = "\nMINI_NAMES = tuple(_MINIS)"
+    assert src.count(anchor) == 1
+    edited = types.ModuleType("sensors_with_toy")
+    monkeypatch.setitem(sys.modules, edited.__name__, edited)  # dataclasses look their module up
+    exec(compile(src.replace(anchor, entry + anchor), sensors.__file__, "exec"), edited.__dict__)
+
+    assert edited.SENSOR_NAMES == sensors.SENSOR_NAMES + ("toy",) and edited.SENSORS[-1] == ("toy", 1)
+    toy = edited.get_sensor("toy")
+    assert toy.key == "toy"
+    with pytest.raises(ValueError, match="one gel"):
+        edited.get_sensor("toy", 2)
+    frame = sim.press("cross", toy, force=(0.3, 0.0, 5.0), seed=0, size=(24, 32))
+    assert frame.image.shape == (24, 32, 3) and frame.image.dtype == np.uint8
+    assert np.abs(frame.image.astype(int) - toy.background((24, 32)).astype(int)).max() > 10  # the press shows
+
+
+def test_sensor_names_have_one_source():
+    assert all(key == s.key for key, s in sensors.PRESETS.items())
+    assert sim.SENSOR_NAMES == tuple(sensors.PRESETS) and dataset.SENSOR_KEYS is sim.SENSOR_NAMES
+    assert set(dataset.MINI_KEYS) == set(sim.SENSOR_NAMES) - {"digit"}
+    check = configs.RULES["data.train_sensor"]
+    assert all(check(k) is None for k in sim.SENSOR_NAMES) and check("mini-4-gel1")
+    assert sim.get_sensor("mini-2", 3) is sim.get_sensor("mini-2-gel3")
+
+
+class _Toy(nn.Module):
+    """A toy backbone: one strided conv. The module file of a new backbone."""
+
+    width: int
+
+    @nn.compact
+    def __call__(self, images, train: bool = False):
+        del train
+        tokens = nn.relu(nn.Conv(self.width, (8, 8), strides=(8, 8), name="patch")(images))
+        return {"feature": tokens.mean(axis=(1, 2)), "tokens": tokens}
+
+
+def test_a_new_backbone_is_a_module_an_entry_and_a_config_section(monkeypatch):
+    """(1) the module (_Toy above), (2) its entry in models.BACKBONES (ffjax/models/model.py), (3) its section
+    in configs/base.py; the registry, the model and the train step take it from there."""
+    from ffjax import train
+
+    monkeypatch.setitem(models.BACKBONES, "toy", lambda section: _Toy(section["width"]))  # (2)
+    cfg = configs.get("smoke")
+    cfg["model"]["toy"] = {"width": 16}  # (3)
+    spec = registry.Method("toy_rd", "Toy RD", "toy", pretrained=False)
+    s, n = cfg["data"]["input_size"], cfg["train"]["batch_size"]
+    out = models.build(cfg["model"], spec, s).init_with_output(jax.random.PRNGKey(0), jnp.zeros((2, s, s, 3)))[0]
+    assert out["force"].shape == (2, 3) and out["depth"].shape == (2, s, s)
+
+    state = train.init_state(cfg, spec, jax.random.PRNGKey(0))
+    rng = np.random.default_rng(0)
+    batch = {"image": rng.normal(size=(n, s, s, 3)).astype(np.float32),
+             "depth": rng.uniform(size=(n, s, s)).astype(np.float32),
+             "force": rng.uniform(0, 5, (n, 3)).astype(np.float32)}
+    state, metrics = train.train_step(state, batch)
+    assert np.isfinite(float(metrics["loss"]))
+    with pytest.raises(ValueError, match="backbone must be one of"):
+        registry.Method("bad", "bad", "convnext")
+
+
+def _without_new_keys(cfg: dict) -> dict:
+    """The config as it was before issue 15 gave these knobs keys (an older model.json)."""
+    cfg = {**cfg, "data": dict(cfg["data"])}
+    for key in ("fz_min", "tilt_max_deg", "shear_noise", "train_sensor"):
+        del cfg["data"][key]
+    return cfg
+
+
+@pytest.mark.parametrize("preset", configs.PRESETS)
+def test_existing_data_folders_stay_valid(preset):
+    """A data folder's config.json (gen_config) is what it was before the keys existed, so folders written
+    then are reused, not refused as written with another config."""
+    cfg = configs.get(preset)
+    g = dataset.gen_config(cfg)
+    assert g == dataset.gen_config(_without_new_keys(cfg))
+    assert set(g["data"]) == set(dataset.GEN_KEYS) | {"fz_min", "tilt_max_deg", "shear_noise"}
+    assert [s.sensor for s in dataset.split_specs(cfg)] == [s.sensor for s in dataset.split_specs(
+        _without_new_keys(cfg))]
+
+
+def test_another_train_sensor_is_another_dataset(tmp_path):
+    cfg = configs.get("smoke", {"data.train_sensor": "mini-2-gel1"})
+    assert dataset.gen_config(cfg)["data"]["train_sensor"] == "mini-2-gel1"
+    specs = {s.name: s.sensor for s in dataset.split_specs(cfg)}
+    assert specs["train"] == specs["val"] == specs["unseen/banana"] == "mini-2-gel1"
+    assert specs["sensor/mini-1-gel1"] == "mini-1-gel1"
+    (tmp_path / "config.json").write_text(json.dumps(dataset.gen_config(configs.get("smoke"))))
+    with pytest.raises(FileExistsError, match="train_sensor"):
+        dataset._prepare(tmp_path, dataset.gen_config(cfg), force=False)
+
+
+def test_code_defaults_are_the_base_defaults():
+    """Code that reads a key an old config may lack falls back to configs/base.py's default."""
+    d = base.CONFIG["data"]
+    assert dataset.BEFORE_KEYS == {k: d[k] for k in dataset.BEFORE_KEYS} and dataset.TRAIN_SENSOR == d["train_sensor"]
+    m = base.CONFIG["model"]
+    vit = {k: v for k, v in m["vit"].items() if k != "interpolate_offset"}
+    assert models.vit.from_config(vit) == models.vit.from_config(m["vit"])
+    dec = {**m["decoder"], "kind": "paper"}
+    assert models.decoder_from_config({k: v for k, v in dec.items() if k != "fast"}, 32) == \
+        models.decoder_from_config(dec, 32)
