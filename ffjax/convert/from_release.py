@@ -166,7 +166,7 @@ def feelanyforce(
 ) -> tuple[dict, dict]:
     """Convert the FeelAnyForce release checkpoint -> (cfg["model"], variables).
 
-    variables = {"params": {"backbone", "regressor", ["decoder"]}} for `models.build(cfg, "dino_rd", S)`
+    variables = {"params": {"backbone", "regressor", ["decoder"]}} for `models.build(cfg, registry.get("dino_rd"), S)`
     (S = the release's crop_size, 224; the decoder kind is "paper"). heads: ViT heads (default from the
     saved args' tactile_model, e.g. dinov2_vitb14 -> 12, else dim // 64). depth_channel: which of the
     release decoder's 3 output channels becomes our single depth channel. with_decoder=False drops it
