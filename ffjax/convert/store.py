@@ -17,8 +17,10 @@ from pathlib import Path
 import numpy as np
 from flax import serialization
 
+from ffjax.jsontree import retuple
+
 FORMAT = "ffjax.convert/1"
-_TUPLES = ("widths", "blocks", "channels")
+_TUPLES = dict.fromkeys(("widths", "blocks", "channels"), ())  # keys of a model section that hold tuples
 
 
 def save(out_dir, kind: str, model_cfg: dict, variables: dict, source: str, **info) -> Path:
@@ -44,7 +46,7 @@ def read_meta(out_dir) -> dict:
     meta = json.loads((Path(out_dir) / "convert.json").read_text())
     if meta.get("format") != FORMAT:
         raise ValueError(f"{out_dir}: not an ffjax.convert output (format {meta.get('format')!r})")
-    meta["model"] = {k: _tuples(v) for k, v in meta["model"].items()}
+    meta["model"] = {k: retuple(v, _TUPLES) for k, v in meta["model"].items()}
     return meta
 
 
@@ -59,12 +61,6 @@ def load_backbone(out_dir) -> tuple[dict, dict]:
     """(backbone params, backbone batch_stats or {}) from a converted directory."""
     _, tree = load(out_dir)
     return tree["params"]["backbone"], tree.get("batch_stats", {}).get("backbone", {})
-
-
-def _tuples(section):
-    if not isinstance(section, dict):
-        return section
-    return {k: tuple(v) if k in _TUPLES and isinstance(v, list) else v for k, v in section.items()}
 
 
 def _to_numpy(tree):
