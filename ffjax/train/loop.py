@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import json
 import math
 import os
@@ -49,23 +50,27 @@ from ffjax.train.state import init_state
 from ffjax.train.step import eval_step, feature_step, make_mesh, replicate, shard_batch, train_step
 
 LOG_NAME, CSV_NAME, SUMMARY_NAME = "train_log.jsonl", "epochs.csv", "summary.json"
-CSV_FIELDS = (
-    "epoch",
-    "step",
-    "train_loss",
-    "train_force_l1",
-    "val_loss",
-    "val_force_l1",
-    "val_depth_mse",
-    "val_nl1",
-    "val_nl1_fx",
-    "val_nl1_fy",
-    "val_nl1_fz",
-    "val_mae_fx",
-    "val_mae_fy",
-    "val_mae_fz",
-    "time_s",
-)
+
+
+def csv_fields(objective) -> tuple[str, ...]:
+    """epochs.csv's columns: the epoch's train means (loss, and each objective term with a train column), its
+    validation (loss, each term, the force metric per axis), and the elapsed time."""
+    return (
+        "epoch",
+        "step",
+        "train_loss",
+        *(f"train_{t.name}" for t in objective.terms if t.train_column),
+        "val_loss",
+        *(f"val_{name}" for name in objective.names),
+        "val_nl1",
+        "val_nl1_fx",
+        "val_nl1_fy",
+        "val_nl1_fz",
+        "val_mae_fx",
+        "val_mae_fy",
+        "val_mae_fz",
+        "time_s",
+    )
 
 
 def with_output_affine(cfg: dict, stats) -> dict:
@@ -152,7 +157,7 @@ def validate(state, val_src, stats, input_size: int, batch_size: int, mesh) -> d
 
 
 def _validate(state, split: _Split, batch_size: int, mesh) -> dict:
-    sums, count, preds, trues = {"loss": 0.0, "force_l1": 0.0, "depth_mse": 0.0}, 0, [], []
+    sums, count, preds, trues = dict.fromkeys(("loss", *state.objective.names), 0.0), 0, [], []
     for batch in split.batches(batch_size):
         n = len(batch["force"])
         m = jax.device_get(eval_step(state, _eval_batch(batch, batch_size, mesh)))
@@ -223,8 +228,8 @@ def _pad(x: np.ndarray, size: int) -> np.ndarray:
 class _Log:
     """JSONL (every row) + CSV (one row per epoch); on resume rows past the restored step are dropped."""
 
-    def __init__(self, run_dir: Path, keep_until: int | None):
-        self.jsonl, self.csv = run_dir / LOG_NAME, run_dir / CSV_NAME
+    def __init__(self, run_dir: Path, keep_until: int | None, fields: tuple[str, ...]):
+        self.jsonl, self.csv, self.fields = run_dir / LOG_NAME, run_dir / CSV_NAME, fields
         if keep_until is None:
             for p in (self.jsonl, self.csv):
                 p.unlink(missing_ok=True)
@@ -238,7 +243,7 @@ class _Log:
         if self.csv.exists():
             with self.csv.open() as f:
                 rows = [r for r in csv.DictReader(f) if _complete(r) and (_int(r.get("step")) or step + 1) <= step]
-            atomic_write_text(self.csv, _csv_text(rows))
+            atomic_write_text(self.csv, _csv_text(rows, self.fields))
 
     def row(self, row: dict) -> None:
         with self.jsonl.open("a") as f:
@@ -249,17 +254,17 @@ class _Log:
 
     def _write_csv(self, rows, mode: str) -> None:
         if mode == "w" or not self.csv.exists():
-            atomic_write_text(self.csv, _csv_text(rows))
+            atomic_write_text(self.csv, _csv_text(rows, self.fields))
             return
         with self.csv.open("a", newline="") as f:
-            csv.DictWriter(f, fieldnames=CSV_FIELDS, extrasaction="ignore").writerows(rows)
+            csv.DictWriter(f, fieldnames=self.fields, extrasaction="ignore").writerows(rows)
 
 
-def _csv_text(rows) -> str:
+def _csv_text(rows, fields) -> str:
     import io
 
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=CSV_FIELDS, extrasaction="ignore")
+    w = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
     w.writeheader()
     w.writerows(rows)
     return buf.getvalue()
@@ -302,29 +307,25 @@ def train(cfg: dict, spec, data, out_dir, resume: bool = False, init_backbone: t
         return _train(cfg, spec, data, run_dir, resume, init_backbone, **kwargs)
 
 
-def _train(
-    cfg: dict,
-    spec,
-    data,
-    out_dir,
-    resume: bool = False,
-    init_backbone: tuple | None = None,
-    *,
-    init_variables: dict | None = None,
-    max_steps: int | None = None,
-    callback: Callable | None = None,
-    progress: bool = True,
-    devices=None,
-) -> dict:
-    from ffjax import data as fdata
+def _train(cfg: dict, spec, data, out_dir, resume: bool = False, init_backbone: tuple | None = None, *,
+           init_variables: dict | None = None, max_steps: int | None = None, callback: Callable | None = None,
+           progress: bool = True, devices=None) -> dict:
     from ffjax import registry
 
     spec = registry.get(spec) if isinstance(spec, str) else spec
-    run_dir = Path(out_dir)
+    run = _open_run(cfg, spec, data, Path(out_dir), resume, init_backbone, init_variables, devices)
+    run.loop(max_steps, callback, progress)
+    return run.finish()
+
+
+def _open_run(cfg, spec, data, run_dir: Path, resume, init_backbone, init_variables, devices) -> _Run:
+    """Everything before step 1: sources, statistics (the run's own on resume), model.json, the state (restored
+    on resume), the data iterator, the log, and every program besides the step compiled."""
+    from ffjax import data as fdata
+
     tc = cfg["train"]
-    nonfinite = tc.get("nonfinite", "stop")
-    if nonfinite not in NONFINITE_MODES:
-        raise ValueError(f"train.nonfinite must be one of {NONFINITE_MODES}, got {nonfinite!r}")
+    if tc.get("nonfinite", "stop") not in NONFINITE_MODES:
+        raise ValueError(f"train.nonfinite must be one of {NONFINITE_MODES}, got {tc['nonfinite']!r}")
     input_size, bs = int(cfg["data"]["input_size"]), int(tc["batch_size"])
     train_src, val_src = open_sources(data)
     steps_per_epoch = len(train_src) // bs
@@ -332,43 +333,20 @@ def _train(
         raise ValueError(f"train split has {len(train_src)} records, fewer than one batch of {bs}: "
                          "lower train.batch_size")
     ckpt = Checkpointer(run_dir)
-    has_ckpt = ckpt.latest_step() is not None
-    if has_ckpt and not resume:
+    restoring = ckpt.latest_step() is not None
+    if restoring and not resume:
         ckpt.close()
         raise FileExistsError(f"{run_dir} already holds checkpoints: pass resume=True (--resume) or a new folder")
-    if resume and has_ckpt:
-        info = read_model_json(run_dir)
-        if info["method"] != spec.name:
-            ckpt.close()
-            raise CheckpointError(f"{run_dir} was trained with method {info['method']!r}, not {spec.name!r}")
-        stats = fdata.Stats.from_dict(info["stats"])
-        # compared after the output affine is filled in, as model.json records it
-        changed = _diff(info["cfg"], json.loads(json.dumps(with_output_affine(cfg, stats))))
-        if changed:  # allowed (e.g. more epochs), but the result then differs from an uninterrupted run
-            warnings.warn(f"resuming {run_dir} with a changed config: {', '.join(changed)}", stacklevel=3)
-    else:
-        stats = fdata.Stats.compute(train_src, cfg["data"])
+    stats = _resumed_stats(ckpt, run_dir, cfg, spec) if restoring else fdata.Stats.compute(train_src, cfg["data"])
     cfg = with_output_affine(cfg, stats)
     first = train_src[0]
     write_model_json(run_dir, cfg, spec, stats, input_size, frame_size=first["image"].shape[:2],
                      background_stats=fdata.stats.background_stats(first["background"]))
-
     total = int(tc["epochs"]) * steps_per_epoch
-    ckpt_every = max(int(tc.get("ckpt_every", steps_per_epoch)), 1)
-    val_every = max(int(tc.get("val_every", 1)), 1)  # epochs; configs written before the key: every epoch
-    log_every = max(1, min(25, steps_per_epoch))
     mesh = make_mesh(devices)
-
-    key = jax.random.PRNGKey(int(cfg["seed"]))
-    state = init_state(
-        cfg,
-        spec,
-        key,
-        input_size,
-        init_backbone=None if resume and has_ckpt else init_backbone,
-        variables=None if resume and has_ckpt else init_variables,
-        total_steps=total,
-    )
+    state = init_state(cfg, spec, jax.random.PRNGKey(int(cfg["seed"])), input_size,
+                       init_backbone=None if restoring else init_backbone,
+                       variables=None if restoring else init_variables, total_steps=total)
     # a full disk fails here, before step 1: two latest checkpoints, the best one, and one being written
     check_writable(run_dir, 4 * sum(int(np.asarray(x).nbytes) for x in jax.tree.leaves(state.arrays())))
     state = replicate(state, mesh)
@@ -377,9 +355,38 @@ def _train(
     val_data = _Split(val_src, stats, input_size) if val_src is not None else None
     it = iter(fdata.make_dataset(train_src, stats, input_size, bs, seed=int(cfg["seed"]), shuffle=True,
                                  arrays=train_data.arrays))
-    meta = {
+    meta = _new_meta(state.objective)
+    if restoring:
+        state, meta = _restore(ckpt, state, meta, it, mesh)
+    start = int(jax.device_get(state.step))
+    log = _Log(run_dir, start if resume else None, csv_fields(state.objective))
+    if start < total:
+        _compile_ahead(state, train_data, val_data, bs, mesh, ckpt)
+    return _Run(run_dir, cfg, spec, stats, ckpt, mesh, state, it, train_data, val_data, log, meta, len(train_src),
+                bs, steps_per_epoch, total, start)
+
+
+def _resumed_stats(ckpt, run_dir: Path, cfg: dict, spec):
+    """The data statistics the run was started with; refused when the folder holds another method's run."""
+    from ffjax import data as fdata
+
+    info = read_model_json(run_dir)
+    if info["method"] != spec.name:
+        ckpt.close()
+        raise CheckpointError(f"{run_dir} was trained with method {info['method']!r}, not {spec.name!r}")
+    stats = fdata.Stats.from_dict(info["stats"])
+    # compared after the output affine is filled in, as model.json records it
+    changed = _diff(info["cfg"], json.loads(json.dumps(with_output_affine(cfg, stats))))
+    if changed:  # allowed (e.g. more epochs), but the result then differs from an uninterrupted run
+        warnings.warn(f"resuming {run_dir} with a changed config: {', '.join(changed)}", stacklevel=5)
+    return stats
+
+
+def _new_meta(objective) -> dict:
+    """What a checkpoint carries besides the arrays: the epoch's running sums, the best epoch so far, time."""
+    return {
         "epoch_loss": 0.0,
-        "epoch_force_l1": 0.0,
+        **{f"epoch_{t.name}": 0.0 for t in objective.terms if t.train_column},
         "epoch_steps": 0,
         "best_val_loss": None,
         "best_step": None,
@@ -388,137 +395,212 @@ def _train(
         "elapsed_s": 0.0,
         "nonfinite_steps": [],
     }
-    if resume and has_ckpt:
+
+
+def _restore(ckpt, state, meta: dict, it, mesh):
+    """(state, meta) from the newest intact checkpoint; the data iterator is moved to its position."""
+    try:
+        state, data_state, saved = ckpt.restore_latest(state)
+    except CheckpointError:
+        ckpt.close()
+        raise
+    for k, v in meta.items():  # keys a checkpoint written before them lacks (nonfinite_steps, a new term's sum)
+        saved.setdefault(k, v)
+    state = replicate(state, mesh)
+    it.set_state(data_state)
+    return state, saved
+
+
+@dataclasses.dataclass
+class _Run:
+    """One opened training run (`_open_run`): `loop` runs the steps, `finish` closes it and writes the summary."""
+
+    run_dir: Path
+    cfg: dict
+    spec: object
+    stats: object
+    ckpt: Checkpointer
+    mesh: object
+    state: object
+    it: object  # the training batches (a grain iterator; its position is checkpointed)
+    train_data: _Split
+    val_data: _Split | None
+    log: _Log
+    meta: dict
+    n_train: int
+    bs: int
+    steps_per_epoch: int
+    total: int
+    start: int
+
+    def __post_init__(self):
+        tc = self.cfg["train"]
+        self.nonfinite = tc.get("nonfinite", "stop")
+        self.ckpt_every = max(int(tc.get("ckpt_every", self.steps_per_epoch)), 1)
+        self.val_every = max(int(tc.get("val_every", 1)), 1)  # epochs; configs written before the key: every epoch
+        self.log_every = max(1, min(25, self.steps_per_epoch))
+        self.sums = [t.name for t in self.state.objective.terms if t.train_column]  # the epoch means' terms
+        self.pending: list = []  # (step, device metrics) not logged yet
+        self.bar = None
+
+    def loop(self, max_steps: int | None, callback: Callable | None, progress: bool) -> None:
+        """Steps from the restored (or first) step to the end or max_steps; metrics are read only at log
+        intervals, epoch ends and saves."""
+        self.t0, self.elapsed0 = time.perf_counter(), float(self.meta["elapsed_s"])
+        self.bar = _progress(progress, self.total, self.start, self.spec.name)
         try:
-            state, data_state, meta = ckpt.restore_latest(state)
-        except CheckpointError:
-            ckpt.close()
+            for step in range(self.start, self.total):
+                self.state, m = train_step(self.state, shard_batch(next(self.it), self.mesh))
+                done = step + 1
+                self.pending.append((done, m))
+                if self.bar is not None:
+                    self.bar.update(1)
+                if callback is not None:
+                    self.state = callback(done, self.state) or self.state
+                epoch_end = done % self.steps_per_epoch == 0
+                # by steps, not at every epoch end: on a small dataset an epoch is seconds, and each save costs
+                # ~0.2 s of CPU (quick ViT on 2 cores: ~0.05 s here, the rest in orbax's writer thread, which
+                # shares the cores with the step); the last step always saves
+                save = done % self.ckpt_every == 0 or done == self.total or done == max_steps
+                if save or epoch_end:
+                    self.flush()  # every step up to a checkpoint is checked finite; epoch means need every step
+                elif done % self.log_every == 0:
+                    self.flush(keep=1)
+                if epoch_end:
+                    self.end_epoch(done)
+                if save:
+                    self.meta["elapsed_s"] = self.elapsed0 + time.perf_counter() - self.t0
+                    self.ckpt.save_latest(done, self.state, self.it.get_state(), self.meta)
+                if max_steps is not None and done >= max_steps:
+                    break
+            self.flush()
+        except BaseException:
+            # already failing (a full disk, a kill, a NaN): the pending saves' own errors would only repeat it and
+            # replace the message that says what happened, so they are dropped here
+            if self.bar is not None:
+                self.bar.close()
+            with contextlib.suppress(Exception):
+                self.ckpt.wait()
+            with contextlib.suppress(Exception):
+                self.ckpt.close()
             raise
-        meta.setdefault("nonfinite_steps", [])
-        state = replicate(state, mesh)
-        it.set_state(data_state)
-    start = int(jax.device_get(state.step))
-    log = _Log(run_dir, start if resume else None)
-    if start < total:
-        _compile_ahead(state, train_data, val_data, bs, mesh, ckpt)
 
-    pending: list = []
-    t0, elapsed0 = time.perf_counter(), float(meta["elapsed_s"])
-    bar = _progress(progress, total, start, spec.name)
-
-    def flush(keep: int = 0):
+    def flush(self, keep: int = 0) -> None:
         """Log the pending steps' metrics, all but the newest `keep`: reading the newest step's would idle the
         device while the host writes the log, where leaving it queued keeps the device busy meanwhile."""
-        n = max(len(pending) - keep, 0)
-        rows = jax.device_get(pending[:n])
-        del pending[:n]
+        n = max(len(self.pending) - keep, 0)
+        rows = jax.device_get(self.pending[:n])
+        del self.pending[:n]
         for step, m in rows:
             ok = math.isfinite(float(m["loss"])) and math.isfinite(float(m["grad_norm"]))
             row = {
                 "kind": "train",
                 "step": step,
-                "epoch": math.ceil(step / steps_per_epoch),
+                "epoch": math.ceil(step / self.steps_per_epoch),
                 **{k: float(v) for k, v in m.items()},
             }
             if not ok:
                 row["skipped"] = True
-            log.row(row)
-            if not ok and nonfinite == "stop":
-                raise _nonfinite_error(row, step, ckpt, run_dir, len(train_src), int(cfg["seed"]), bs)
+            self.log.row(row)
+            if not ok and self.nonfinite == "stop":
+                raise _nonfinite_error(row, step, self.ckpt, self.run_dir, self.n_train, int(self.cfg["seed"]),
+                                       self.bs)
             if not ok:  # "skip": the step dropped the update; keep the epoch means finite
-                meta["nonfinite_steps"].append(step)
+                self.meta["nonfinite_steps"].append(step)
                 continue
-            meta["epoch_loss"] += row["loss"]
-            meta["epoch_force_l1"] += row["force_l1"]
-            meta["epoch_steps"] += 1
-        if rows and bar is not None:
-            bar.set_postfix(loss=f"{rows[-1][1]['loss']:.4f}")
+            self.meta["epoch_loss"] += row["loss"]
+            for name in self.sums:
+                self.meta[f"epoch_{name}"] += row[name]
+            self.meta["epoch_steps"] += 1
+        if rows and self.bar is not None:
+            self.bar.set_postfix(loss=f"{rows[-1][1]['loss']:.4f}")
 
-    try:
-        for step in range(start, total):
-            batch = next(it)
-            state, m = train_step(state, shard_batch(batch, mesh))
-            done = step + 1
-            pending.append((done, m))
-            if bar is not None:
-                bar.update(1)
-            if callback is not None:
-                state = callback(done, state) or state
-            epoch_end = done % steps_per_epoch == 0
-            # by steps, not at every epoch end: on a small dataset an epoch is seconds, and each save costs
-            # ~0.2 s of CPU (quick ViT on 2 cores: ~0.05 s here, the rest in orbax's writer thread, which
-            # shares the cores with the step); the last step always saves
-            save = done % ckpt_every == 0 or done == total or done == max_steps
-            if save or epoch_end:
-                flush()  # every step up to a checkpoint is checked finite; epoch means need every step
-            elif done % log_every == 0:
-                flush(keep=1)
-            if epoch_end:
-                epoch = done // steps_per_epoch
-                evaluate = epoch % val_every == 0 or done == total
-                t_eval = time.perf_counter()
-                if evaluate:
-                    jax.block_until_ready(state.params)  # queued train steps are not evaluation time
-                    t_eval = time.perf_counter()
-                    state = refresh_feature_norm(state, train_data, bs, mesh)
-                _end_epoch(state, meta, done, epoch, val_data if evaluate else _SKIP, bs, mesh, ckpt, log,
-                           elapsed0 + time.perf_counter() - t0)
-                if evaluate:
-                    meta["eval_s"] = meta.get("eval_s", 0.0) + time.perf_counter() - t_eval
-            if save:
-                meta["elapsed_s"] = elapsed0 + time.perf_counter() - t0
-                ckpt.save_latest(done, state, it.get_state(), meta)
-            if max_steps is not None and done >= max_steps:
-                break
-        flush()
-    except BaseException:
-        # already failing (a full disk, a kill, a NaN): the pending saves' own errors would only repeat it and
-        # replace the message that says what happened, so they are dropped here
-        if bar is not None:
-            bar.close()
-        with contextlib.suppress(Exception):
-            ckpt.wait()
-        with contextlib.suppress(Exception):
-            ckpt.close()
-        raise
-    if bar is not None:
-        bar.close()
-    try:
-        ckpt.wait()  # a pending async save must finish (or report its error) before the run counts as done
-    except BaseException:
-        with contextlib.suppress(Exception):
-            ckpt.close()
-        raise
-    ckpt.close()
+    def end_epoch(self, done: int) -> None:
+        """The epoch's CSV row; on a validation epoch (train.val_every, and the last) also validate and keep the
+        best checkpoint."""
+        epoch = done // self.steps_per_epoch
+        evaluate = epoch % self.val_every == 0 or done == self.total
+        t_eval = time.perf_counter()
+        if evaluate:
+            jax.block_until_ready(self.state.params)  # queued train steps are not evaluation time
+            t_eval = time.perf_counter()
+            self.state = refresh_feature_norm(self.state, self.train_data, self.bs, self.mesh)
+        row = self._epoch_row(done, epoch, self.elapsed0 + time.perf_counter() - self.t0)
+        if not evaluate:  # not a validation epoch (train.val_every): the row has train columns only
+            self.log.epoch(row)
+            return
+        if self.val_data is not None:
+            val = _validate(self.state, self.val_data, self.bs, self.mesh)
+            self.meta["last_val"] = {**val, "epoch": epoch, "step": done}
+            self.log.row({"kind": "val", "step": done, "epoch": epoch, **val})
+            row.update(_val_columns(val, self.state.objective))
+            score = val["loss"]
+        else:
+            score = row["train_loss"]  # no validation split: keep the newest epoch as "best"
+        meta = self.meta
+        if meta["best_val_loss"] is None or score < meta["best_val_loss"]:
+            meta.update(best_val_loss=score, best_step=done, best_epoch=epoch)
+            self.ckpt.save_best(done, self.state, {"epoch": epoch, "step": done, "val_loss": score,
+                                                   "val": meta["last_val"]})
+        self.log.epoch(row)
+        meta["eval_s"] = meta.get("eval_s", 0.0) + time.perf_counter() - t_eval
 
-    final_step = int(jax.device_get(state.step))
-    elapsed = elapsed0 + time.perf_counter() - t0
-    summary = {
-        "run_dir": str(run_dir),
-        "method": spec.name,
-        "preset": cfg.get("preset"),
-        "steps": final_step,
-        "total_steps": total,
-        "complete": final_step >= total,
-        "steps_per_epoch": steps_per_epoch,
-        "epochs": final_step / steps_per_epoch,
-        "devices": int(mesh.devices.size),
-        "train_time_s": elapsed,
-        # feature-norm refresh + validation + choosing the best checkpoint (train.val_every sets how often)
-        "eval_time_s": meta.get("eval_s", 0.0),
-        "best_step": meta["best_step"],
-        "best_epoch": meta["best_epoch"],
-        "best_val_loss": meta["best_val_loss"],
-        "val": meta["last_val"],
-        "force_range": {"min": list(stats.force_min), "max": list(stats.force_max)},
-    }
-    if meta["nonfinite_steps"]:
-        warnings.warn(f"{len(meta['nonfinite_steps'])} non-finite step(s) skipped (train.nonfinite='skip'): "
-                      f"steps {meta['nonfinite_steps'][:20]}", stacklevel=3)
-    summary["nonfinite_skipped"] = list(meta["nonfinite_steps"])
-    atomic_write_text(run_dir / SUMMARY_NAME, json.dumps(summary, indent=2))
-    summary["state"] = state
-    return summary
+    def _epoch_row(self, done: int, epoch: int, elapsed: float) -> dict:
+        """The epoch's train columns (means over its finite steps); the running sums start again."""
+        n = max(self.meta["epoch_steps"], 1)
+        row = {"epoch": epoch, "step": done, "train_loss": self.meta["epoch_loss"] / n}
+        row.update({f"train_{name}": self.meta[f"epoch_{name}"] / n for name in self.sums})
+        row["time_s"] = round(elapsed, 2)
+        self.meta.update({"epoch_loss": 0.0, **{f"epoch_{name}": 0.0 for name in self.sums}, "epoch_steps": 0})
+        return row
+
+    def finish(self) -> dict:
+        """Wait for the last saves, write summary.json; the summary (with the final state) is returned."""
+        if self.bar is not None:
+            self.bar.close()
+        try:
+            self.ckpt.wait()  # a pending async save must finish (or report its error) before the run counts as done
+        except BaseException:
+            with contextlib.suppress(Exception):
+                self.ckpt.close()
+            raise
+        self.ckpt.close()
+        meta, stats = self.meta, self.stats
+        final_step = int(jax.device_get(self.state.step))
+        summary = {
+            "run_dir": str(self.run_dir),
+            "method": self.spec.name,
+            "preset": self.cfg.get("preset"),
+            "steps": final_step,
+            "total_steps": self.total,
+            "complete": final_step >= self.total,
+            "steps_per_epoch": self.steps_per_epoch,
+            "epochs": final_step / self.steps_per_epoch,
+            "devices": int(self.mesh.devices.size),
+            "train_time_s": self.elapsed0 + time.perf_counter() - self.t0,
+            # feature-norm refresh + validation + choosing the best checkpoint (train.val_every sets how often)
+            "eval_time_s": meta.get("eval_s", 0.0),
+            "best_step": meta["best_step"],
+            "best_epoch": meta["best_epoch"],
+            "best_val_loss": meta["best_val_loss"],
+            "val": meta["last_val"],
+            "force_range": {"min": list(stats.force_min), "max": list(stats.force_max)},
+        }
+        if meta["nonfinite_steps"]:
+            warnings.warn(f"{len(meta['nonfinite_steps'])} non-finite step(s) skipped (train.nonfinite='skip'): "
+                          f"steps {meta['nonfinite_steps'][:20]}", stacklevel=4)
+        summary["nonfinite_skipped"] = list(meta["nonfinite_steps"])
+        atomic_write_text(self.run_dir / SUMMARY_NAME, json.dumps(summary, indent=2))
+        summary["state"] = self.state
+        return summary
+
+
+def _val_columns(val: dict, objective) -> dict:
+    """epochs.csv's validation columns from a `_validate` result."""
+    row = {"val_loss": val["loss"], **{f"val_{name}": val[name] for name in objective.names}, "val_nl1": val["nl1"]}
+    row.update({f"val_nl1_{a}": v for a, v in zip(("fx", "fy", "fz"), val["nl1_axes"])})
+    row.update({f"val_mae_{a}": v for a, v in zip(("fx", "fy", "fz"), val["mae_n"])})
+    return row
 
 
 def _nonfinite_error(row, step, ckpt, run_dir, n, seed, bs) -> NonFiniteLossError:
@@ -533,45 +615,6 @@ def _nonfinite_error(row, step, ckpt, run_dir, n, seed, bs) -> NonFiniteLossErro
         + ". Lower train.lr_* or set train.grad_clip, check those records, then resume or restart "
         "(or set train.nonfinite=skip)."
     )
-
-
-_SKIP = object()  # _end_epoch's val_data on an epoch that does not validate
-
-
-def _end_epoch(state, meta, step, epoch, val_data, bs, mesh, ckpt, log, elapsed):
-    n = max(meta["epoch_steps"], 1)
-    row = {
-        "epoch": epoch,
-        "step": step,
-        "train_loss": meta["epoch_loss"] / n,
-        "train_force_l1": meta["epoch_force_l1"] / n,
-        "time_s": round(elapsed, 2),
-    }
-    meta.update(epoch_loss=0.0, epoch_force_l1=0.0, epoch_steps=0)
-    if val_data is _SKIP:  # not a validation epoch (train.val_every): the row has train columns only
-        log.epoch(row)
-        return
-    if val_data is not None:
-        val = _validate(state, val_data, bs, mesh)
-        meta["last_val"] = {**val, "epoch": epoch, "step": step}
-        log.row({"kind": "val", "step": step, "epoch": epoch, **val})
-        row.update(
-            {
-                "val_loss": val["loss"],
-                "val_force_l1": val["force_l1"],
-                "val_depth_mse": val["depth_mse"],
-                "val_nl1": val["nl1"],
-            }
-        )
-        row.update({f"val_nl1_{a}": v for a, v in zip(("fx", "fy", "fz"), val["nl1_axes"])})
-        row.update({f"val_mae_{a}": v for a, v in zip(("fx", "fy", "fz"), val["mae_n"])})
-        score = val["loss"]
-    else:
-        score = row["train_loss"]  # no validation split: keep the newest epoch as "best"
-    if meta["best_val_loss"] is None or score < meta["best_val_loss"]:
-        meta.update(best_val_loss=score, best_step=step, best_epoch=epoch)
-        ckpt.save_best(step, state, {"epoch": epoch, "step": step, "val_loss": score, "val": meta["last_val"]})
-    log.epoch(row)
 
 
 def _diff(a, b, prefix: str = "") -> list[str]:

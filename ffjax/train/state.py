@@ -1,7 +1,7 @@
 """Train state, parameter labels and the optimizer: an ablation is a label function plus loss weights.
 
 `TrainState` is a pytree: its array fields (step, params, batch_stats, opt_state, key) are what
-checkpoints hold; its static fields (model, tx, labels_fn, loss weights) are part of the tree
+checkpoints hold; its static fields (model, tx, labels_fn, objective) are part of the tree
 structure, so `train_step` compiles once per run and a state rebuilt from the same config reuses
 the compiled step.
 """
@@ -18,6 +18,8 @@ import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
+
+from ffjax.train.objective import Objective
 
 # Groups an optimizer knows about; every parameter leaf gets exactly one of them.
 GROUPS = ("backbone", "heads", "frozen")
@@ -38,8 +40,8 @@ class TrainState:
     model: nn.Module = struct.field(pytree_node=False)
     tx: optax.GradientTransformation = struct.field(pytree_node=False)
     labels_fn: Callable = struct.field(pytree_node=False)
-    alpha: float = struct.field(pytree_node=False, default=1.0)
-    beta: float = struct.field(pytree_node=False, default=0.0)
+    # the loss terms and their weights (ffjax/train/objective.py)
+    objective: Objective = struct.field(pytree_node=False, default=None)
     # BatchNorm runs in train mode only when the backbone itself trains; a frozen backbone is a
     # fixed feature extractor (running statistics untouched), which is what calibration expects.
     bn_train: bool = struct.field(pytree_node=False, default=True)
@@ -252,7 +254,6 @@ def init_state(
     cfg_train = _scaled_lrs(cfg_train or cfg["train"], spec)
     tx = make_optimizer(cfg_train, labeler, total_steps)
     params = variables["params"]
-    beta = float(getattr(spec, "beta", 0.0)) if getattr(spec, "depth_head", False) else 0.0
     compute_dtype = cfg_train.get("compute_dtype", "float32")  # configs written before the key: float32
     if compute_dtype not in COMPUTE_DTYPES:
         raise ValueError(f"train.compute_dtype must be one of {COMPUTE_DTYPES}, got {compute_dtype!r}")
@@ -265,8 +266,7 @@ def init_state(
         model=model,
         tx=tx,
         labels_fn=labeler,
-        alpha=float(getattr(spec, "alpha", 1.0)),
-        beta=beta,
+        objective=Objective.of(spec),
         bn_train=getattr(labeler, "backbone_trains", True),
         head_bn_train=getattr(labeler, "regressor_trains", True),
         force_weights=force_weights(cfg, cfg_train),
@@ -281,7 +281,7 @@ def force_weights(cfg: dict, cfg_train: dict) -> tuple[float, float, float] | No
     """Per-axis weights of the force loss for train.force_loss, or None for plain newtons.
 
     "normalized": 1 / training range per axis (the metric's normalization), scaled to mean 1 so the loss
-    stays in newton-like units and alpha/beta keep their meaning. The range is the regressor's out_scale
+    stays in newton-like units and the terms' weights keep their meaning. The range is the regressor's out_scale
     (half the training range), so it needs model.regressor.normalize_output. A state built outside the
     training loop (benchmarks, tests), before the loop fills out_scale from the labels, weighs axes equally.
     """

@@ -1,8 +1,7 @@
 """The pure training and evaluation steps, each jitted once, and data-parallel placement.
 
-loss = alpha * L1(force) + beta * MSE(depth in [0, 1]); beta is 0 for methods without a depth head. The force
-L1 is in newtons averaged over axes, or (train.force_loss="normalized") weighted per axis by 1 / its
-training range; the logged force_l1 is always plain newtons.
+The loss and the metrics it logs are the state's objective (ffjax/train/objective.py: the terms, each
+declared once, weighted by the method's fields); the step returns {"loss", <one per term>, "grad_norm"}.
 Data parallel: the batch is sharded along a 1-D mesh of all devices and the state is replicated;
 XLA inserts the gradient all-reduce, so the numbers equal a single-device step up to float
 summation order. One device is the degenerate mesh.
@@ -42,23 +41,8 @@ def _forward(state: TrainState, params, images, train: bool, key):
 
 
 def _losses(state: TrainState, out, batch, weights=None):
-    """Per-batch force L1 and depth MSE; `weights` (B,) masks padded rows in evaluation."""
-    abs_err = jnp.abs(out["force"] - batch["force"])
-    f_err = jnp.mean(abs_err, axis=-1)
-    # the objective's force term: equal to f_err unless the axes are weighted
-    f_obj = f_err if state.force_weights is None else jnp.mean(abs_err * jnp.asarray(state.force_weights), axis=-1)
-    if state.beta and "depth" in out:
-        d_err = jnp.mean(jnp.square(out["depth"] - batch["depth"]), axis=tuple(range(1, out["depth"].ndim)))
-    else:
-        d_err = jnp.zeros_like(f_err)
-    if weights is None:
-        force_l1, force_obj, depth_mse = jnp.mean(f_err), jnp.mean(f_obj), jnp.mean(d_err)
-    else:
-        n = jnp.maximum(jnp.sum(weights), 1.0)
-        force_l1, force_obj = jnp.sum(f_err * weights) / n, jnp.sum(f_obj * weights) / n
-        depth_mse = jnp.sum(d_err * weights) / n
-    loss = state.alpha * force_obj + state.beta * depth_mse
-    return loss, force_l1, depth_mse
+    """(loss, {term name: batch mean}) of the state's objective; `weights` (B,) masks padded rows in evaluation."""
+    return state.objective.losses(state, out, batch, weights)
 
 
 def _mixed_forward(state: TrainState, params, images, key):
@@ -89,10 +73,10 @@ def _train_step(state: TrainState, batch: dict):
         # costs a forward only), and set_to_zero keeps them fixed.
         params = jax.tree.map(lambda p, l: jax.lax.stop_gradient(p) if l == "frozen" else p, params, labels)
         out, new_stats = _mixed_forward(state, params, batch["image"], key)
-        loss, force_l1, depth_mse = _losses(state, out, batch)
-        return loss, (force_l1, depth_mse, new_stats)
+        loss, terms = _losses(state, out, batch)
+        return loss, (terms, new_stats)
 
-    (loss, (force_l1, depth_mse, new_stats)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
+    (loss, (terms, new_stats)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
     updates, opt_state = state.tx.update(grads, state.opt_state, state.params)
     params = optax.apply_updates(state.params, updates)
     grad_norm = optax.tree.norm(grads)
@@ -102,7 +86,7 @@ def _train_step(state: TrainState, batch: dict):
     # loss and grad_norm with the other metrics, at its existing sync points, and stops or goes on
     # (train.nonfinite): no extra output, no extra host sync.
     kept = _select(finite, (params, opt_state, new_stats), (state.params, state.opt_state, state.batch_stats))
-    metrics = {"loss": loss, "force_l1": force_l1, "depth_mse": depth_mse, "grad_norm": grad_norm}
+    metrics = {"loss": loss, **terms, "grad_norm": grad_norm}
     new_state = state.replace(step=state.step + 1, params=kept[0], opt_state=kept[1], batch_stats=kept[2])
     return new_state, metrics
 
@@ -115,8 +99,8 @@ def _eval_step(state: TrainState, batch: dict):
     TRACE_COUNT["eval"] += 1
     out, _ = _forward(state, state.params, batch["image"], False, state.key)
     weights = batch.get("mask")
-    loss, force_l1, depth_mse = _losses(state, out, batch, weights)
-    return {"loss": loss, "force_l1": force_l1, "depth_mse": depth_mse, "force": out["force"]}
+    loss, terms = _losses(state, out, batch, weights)
+    return {"loss": loss, **terms, "force": out["force"]}
 
 
 def _feature_step(state: TrainState, images):
@@ -124,10 +108,10 @@ def _feature_step(state: TrainState, images):
     return out["feature"]
 
 
-# train_step(state, batch) -> (state, {loss, force_l1, depth_mse, grad_norm}); the input state is donated.
+# train_step(state, batch) -> (state, {loss, <each objective term>, grad_norm}); the input state is donated.
 # When loss or grad_norm is NaN/inf that step's update is dropped (the step counter still moves on).
 train_step = jax.jit(_train_step, donate_argnums=0)
-# eval_step(state, batch) -> {loss, force_l1, depth_mse, force (B,3)}; an optional batch["mask"] (B,)
+# eval_step(state, batch) -> {loss, <each objective term>, force (B,3)}; an optional batch["mask"] (B,)
 # weights rows, so a padded last batch averages over its real rows only.
 eval_step = jax.jit(_eval_step)
 # feature_step(state, images) -> the backbone feature (B, D) in evaluation mode

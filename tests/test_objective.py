@@ -1,0 +1,73 @@
+"""The objective as data (issue 15). Worked example: a loss term added in one place (an entry of
+`objective.TERMS`, its weight a Method field) appears in the step's metrics and loss, the train log,
+validation and epochs.csv."""
+
+import csv
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from _tiny_data import write_tiny_dataset
+
+import configs
+from ffjax import registry, train
+from ffjax.registry import Method
+from ffjax.train import loop as loop_lib
+from ffjax.train import objective
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory):
+    return write_tiny_dataset(tmp_path_factory.mktemp("tiny_data"), 16, 8)
+
+
+def test_the_default_objective_keeps_the_csv_columns_users_read():
+    fields = loop_lib.csv_fields(objective.Objective.of(registry.get("dino_rd")))
+    assert fields == ("epoch", "step", "train_loss", "train_force_l1", "val_loss", "val_force_l1", "val_depth_mse",
+                      "val_nl1", "val_nl1_fx", "val_nl1_fy", "val_nl1_fz", "val_mae_fx", "val_mae_fy",
+                      "val_mae_fz", "time_s")
+
+
+def fz_l1(state, out, batch):
+    """The toy term: |error| of the normal force alone."""
+    return jnp.abs(out["force"][:, 2] - batch["force"][:, 2])
+
+
+@dataclasses.dataclass(frozen=True)
+class ToyMethod(Method):
+    gamma: float = 0.5  # the toy term's weight
+
+
+def test_a_new_term_is_one_entry(tiny_data, tmp_path, monkeypatch):
+    # the one place: a Term in objective.TERMS (its weight, `gamma`, a Method field)
+    monkeypatch.setattr(objective, "TERMS", (*objective.TERMS, objective.Term("fz_l1", "gamma", fz_l1)))
+    spec = ToyMethod("toy_fz", "Toy (Fz term)", "vit", pretrained=False)
+    cfg = configs.get("smoke", {"train.epochs": 2, "train.batch_size": 8})
+
+    state = train.init_state(cfg, spec, jax.random.PRNGKey(0))
+    assert state.objective.names == ("force_l1", "depth_mse", "fz_l1")
+    batch = {k: v[:8] for k, v in _batch(cfg).items()}
+    _, m = train.train_step(state, batch)
+    assert set(m) == {"loss", "force_l1", "depth_mse", "fz_l1", "grad_norm"}
+    want = spec.alpha * m["force_l1"] + spec.beta * m["depth_mse"] + spec.gamma * m["fz_l1"]
+    np.testing.assert_allclose(float(m["loss"]), float(want), rtol=1e-5)
+
+    run = train.train(cfg, spec, tiny_data, tmp_path, progress=False)
+    assert "fz_l1" in run["val"] and np.isfinite(run["val"]["fz_l1"])  # validation
+    rows = [json.loads(r) for r in open(tmp_path / loop_lib.LOG_NAME)]
+    assert all("fz_l1" in r for r in rows)  # every train and val row of the log
+    with open(tmp_path / loop_lib.CSV_NAME) as f:
+        epochs = list(csv.DictReader(f))
+    assert {"train_fz_l1", "val_fz_l1"} <= set(epochs[0]) and len(epochs) == 2
+    assert float(epochs[-1]["val_fz_l1"]) == pytest.approx(run["val"]["fz_l1"])
+
+
+def _batch(cfg):
+    rng = np.random.default_rng(0)
+    s, n = cfg["data"]["input_size"], 8
+    return {"image": rng.normal(size=(n, s, s, 3)).astype(np.float32),
+            "depth": rng.uniform(size=(n, s, s)).astype(np.float32),
+            "force": rng.uniform(0, 5, size=(n, 3)).astype(np.float32)}
