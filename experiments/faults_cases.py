@@ -427,7 +427,7 @@ def case6(d: Path, sh: Shared) -> list[dict]:
     run = d / "run"
     shutil.copytree(sh.run, run)
     *_, older, newest = _steps(run / "checkpoints")
-    target = _largest(run / "checkpoints" / str(newest) / "state" / "ocdbt.process_0" / "d")
+    target = _largest(run / "checkpoints" / str(newest) / "packed" / "ocdbt.process_0" / "d")
     target.write_bytes(target.read_bytes()[: target.stat().st_size // 2])
     r = _cli(d, "resume", sh.env, *_train(sh.data, run, "train.epochs=3", "train.ckpt_every=3", extra=["--resume"]))
     steps, total = _summary_steps(run)

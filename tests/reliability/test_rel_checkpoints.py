@@ -49,7 +49,7 @@ def test_missing_checkpoint_is_refused(run, tmp_path):
 def test_partial_checkpoint_is_refused(run, tmp_path):
     dst = _copy(run, tmp_path)
     step = max(int(p.name) for p in (dst / "checkpoints").iterdir() if p.name.isdigit())
-    state = dst / "checkpoints" / str(step) / "state"
+    state = dst / "checkpoints" / str(step) / "packed"
     for p in state.rglob("*"):  # an interrupted copy: the array data is gone
         if p.is_file() and ("ocdbt" in str(p) or p.parent.name == "d"):
             p.unlink()

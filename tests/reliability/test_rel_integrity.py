@@ -73,7 +73,7 @@ def test_resume_falls_back_to_the_newest_intact_checkpoint(data, reference, tmp_
     run = tmp_path / "run"
     train.train(_cfg(), METHOD, data, run, progress=False, max_steps=9)
     assert _steps(run) == [6, 9]
-    victim = _biggest_data_file(run / "checkpoints" / "9" / "state")
+    victim = _biggest_data_file(run / "checkpoints" / "9" / "packed")
     if damage == "truncate":
         with open(victim, "r+b") as f:
             f.truncate(victim.stat().st_size // 2)
@@ -93,7 +93,7 @@ def test_resume_falls_back_to_the_newest_intact_checkpoint(data, reference, tmp_
 def test_no_intact_checkpoint_left_is_an_error(data, tmp_path):
     run = tmp_path / "run"
     train.train(_cfg(), METHOD, data, run, progress=False, max_steps=3)
-    with open(_biggest_data_file(run / "checkpoints" / "3" / "state"), "r+b") as f:
+    with open(_biggest_data_file(run / "checkpoints" / "3" / "packed"), "r+b") as f:
         f.truncate(10)
     with pytest.raises(ckpt_lib.CheckpointError, match="no intact checkpoint is left"):
         train.train(_cfg(), METHOD, data, run, resume=True, progress=False)
