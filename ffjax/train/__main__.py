@@ -67,7 +67,6 @@ def main(argv=None) -> int:
     from ffjax import cli, registry, train
     from ffjax.train.checkpoint import CheckpointError, CheckpointWriteError
 
-    cfg = args.cfg
     spec = registry.get(args.method)
     out = Path(args.out or Path("runs") / f"{args.preset}-{args.method}")
     ckpts = out / "checkpoints"
@@ -76,48 +75,13 @@ def main(argv=None) -> int:
         return cli.fail(f"--resume: nothing to resume in {out} (no checkpoint in {ckpts}); drop --resume to start "
                         "a new run there (or --resume=auto to start when there is none)", cli.USAGE)
     resume = bool(args.resume)  # train() starts from step 0 when a killed run had not saved yet
-    data_dir = args.data
-    if args.val and not (data_dir and str(data_dir).endswith(".csv")):
-        return cli.fail("--val goes with --data TRAIN.csv", cli.USAGE)
-    if data_dir and str(data_dir).endswith(".csv"):
-        from ffjax import data
-
-        try:  # every row checked now, so a bad file stops the run before any work
-            data_dir = {k: data.open_split(v, validate=True, skip_bad_rows=args.skip_bad_rows) if v else None
-                        for k, v in (("train", data_dir), ("val", args.val))}
-        except data.DataError as e:
-            return cli.fail(e, cli.USAGE)
-        if not args.val:
-            print("note: no --val CSV: no validation, the best checkpoint is the last one", file=sys.stderr)
-    elif data_dir is None:
-        from ffjax.sim import dataset
-
-        data_dir = Path("data") / args.preset
-        print(f"dataset: {data_dir} (simulated, preset {args.preset}; generated once, then reused)")
-        dataset.generate(cfg, data_dir)
-    backbone, variables = None, None
-    if args.init and args.pretrained:
-        return cli.fail("give --init or --pretrained, not both", cli.USAGE)
-    if args.init:
-        from ffjax.train import init_weights
-
-        try:
-            cfg, backbone, variables = init_weights.apply(cfg, spec, args.init)
-        except (ValueError, FileNotFoundError) as e:
-            return cli.fail(e, cli.USAGE)
-    elif args.pretrained:
-        from ffjax.train.pretrain import load_backbone
-
-        if not Path(args.pretrained).is_dir():
-            raise FileNotFoundError(f"--pretrained {args.pretrained}: no such folder (make one with python -m "
-                                    "ffjax.train.pretrain --out DIR)")
-        backbone = load_backbone(args.pretrained)
-    elif spec.pretrained and not (resume and has_ckpt):
-        print(
-            f"note: {spec.name} expects a pretrained backbone; none given (--pretrained DIR), "
-            "so it starts from random init",
-            file=sys.stderr,
-        )
+    data_dir = _data(args)
+    if isinstance(data_dir, int):  # an exit code: the arguments were refused
+        return data_dir
+    start = _start(args, spec, resume and has_ckpt)
+    if isinstance(start, int):
+        return start
+    cfg, backbone, variables = start
     t0 = time.perf_counter()
     try:
         summary = train.train(
@@ -144,6 +108,65 @@ def main(argv=None) -> int:
     if summary["best_epoch"] is not None:
         print(f"best checkpoint: epoch {summary['best_epoch']} (val loss {summary['best_val_loss']:.4f})")
     return 0
+
+
+def _data(args):
+    """What train() takes as data: --data/--val CSV files (every row checked now, so a bad file stops the run
+    before any work), a dataset folder, or the preset's simulated dataset (generated once); an exit code when
+    the arguments are refused."""
+    from ffjax import cli
+
+    data_dir = args.data
+    if args.val and not (data_dir and str(data_dir).endswith(".csv")):
+        return cli.fail("--val goes with --data TRAIN.csv", cli.USAGE)
+    if data_dir and str(data_dir).endswith(".csv"):
+        from ffjax import data
+
+        try:
+            data_dir = {k: data.open_split(v, validate=True, skip_bad_rows=args.skip_bad_rows) if v else None
+                        for k, v in (("train", data_dir), ("val", args.val))}
+        except data.DataError as e:
+            return cli.fail(e, cli.USAGE)
+        if not args.val:
+            print("note: no --val CSV: no validation, the best checkpoint is the last one", file=sys.stderr)
+    elif data_dir is None:
+        from ffjax.sim import dataset
+
+        data_dir = Path("data") / args.preset
+        print(f"dataset: {data_dir} (simulated, preset {args.preset}; generated once, then reused)")
+        dataset.generate(args.cfg, data_dir)
+    return data_dir
+
+
+def _start(args, spec, restoring: bool):
+    """(cfg, backbone, variables) a run starts from: --init (converted weights; it may set model keys),
+    --pretrained (a pretrain folder's backbone) or random init; an exit code when the arguments are refused."""
+    from ffjax import cli
+
+    cfg, backbone, variables = args.cfg, None, None
+    if args.init and args.pretrained:
+        return cli.fail("give --init or --pretrained, not both", cli.USAGE)
+    if args.init:
+        from ffjax.train import init_weights
+
+        try:
+            cfg, backbone, variables = init_weights.apply(cfg, spec, args.init)
+        except (ValueError, FileNotFoundError) as e:
+            return cli.fail(e, cli.USAGE)
+    elif args.pretrained:
+        from ffjax.train.pretrain import load_backbone
+
+        if not Path(args.pretrained).is_dir():
+            raise FileNotFoundError(f"--pretrained {args.pretrained}: no such folder (make one with python -m "
+                                    "ffjax.train.pretrain --out DIR)")
+        backbone = load_backbone(args.pretrained)
+    elif spec.pretrained and not restoring:
+        print(
+            f"note: {spec.name} expects a pretrained backbone; none given (--pretrained DIR), "
+            "so it starts from random init",
+            file=sys.stderr,
+        )
+    return cfg, backbone, variables
 
 
 if __name__ == "__main__":

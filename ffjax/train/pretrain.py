@@ -278,22 +278,26 @@ def make_update(cfg: dict, kind: str):
         m = momentum_fn(step)
         t_params = jax.tree.map(lambda t, s: m * t + (1 - m) * s, state["teacher"]["params"], params)
         center = p["center_momentum"] * state["center"] + (1 - p["center_momentum"]) * t_logits.mean(0, keepdims=True)
-        mean_probs = t_probs.mean((0, 1))
-        featn = feat / (jnp.linalg.norm(feat, axis=-1, keepdims=True) + 1e-6)
-        metrics = {
-            "loss": loss, "lr": lr_fn(step), "momentum": m, "teacher_temp": temp_fn(step),
-            # collapse monitors: per-sample teacher entropy falls with sharpening; the entropy of the
-            # batch-mean distribution stays high unless every image maps to the same prototypes
-            "teacher_entropy": -jnp.sum(t_probs * jnp.log(t_probs + 1e-12), -1).mean(),
-            "teacher_batch_entropy": -jnp.sum(mean_probs * jnp.log(mean_probs + 1e-12)),
-            "feature_std": featn.std(0).mean(),
-        }
+        metrics = {"loss": loss, "lr": lr_fn(step), "momentum": m, "teacher_temp": temp_fn(step),
+                   **_collapse_monitors(t_probs, feat)}
         new = {"step": step + 1, "student": {"params": params, "batch_stats": s_stats},
                "teacher": {"params": t_params, "batch_stats": t_stats}, "opt_state": opt_state,
                "center": center}
         return new, metrics
 
     return update
+
+
+def _collapse_monitors(t_probs, feat) -> dict:
+    """Per-sample teacher entropy falls with sharpening; the entropy of the batch-mean distribution stays high
+    unless every image maps to the same prototypes; a collapsed backbone's normalized features stop varying."""
+    mean_probs = t_probs.mean((0, 1))
+    featn = feat / (jnp.linalg.norm(feat, axis=-1, keepdims=True) + 1e-6)
+    return {
+        "teacher_entropy": -jnp.sum(t_probs * jnp.log(t_probs + 1e-12), -1).mean(),
+        "teacher_batch_entropy": -jnp.sum(mean_probs * jnp.log(mean_probs + 1e-12)),
+        "feature_std": featn.std(0).mean(),
+    }
 
 
 # ----------------------------------------------------------------------------- run, cache, load
@@ -321,26 +325,49 @@ def ensure(cfg: dict, kind: str, folder, force: bool = False, progress: bool = T
 
 def pretrain(cfg: dict, kind: str, folder, progress: bool = True) -> dict:
     """Run DINO for cfg pretrain.steps on the corpus; writes the teacher backbone + pretrain.json."""
-    from tqdm import tqdm
-
     folder = Path(folder)
     st = settings(cfg, kind)
     if int(st["pretrain"]["steps"]) <= 0:
         raise ValueError(f"preset {cfg.get('preset')!r} sets pretrain.steps=0: it loads real weights "
                          "(python -m ffjax.convert) instead of pretraining")
     folder.mkdir(parents=True, exist_ok=True)
-    p = st["pretrain"]
     t0 = time.perf_counter()
     images, cmeta = corpus_lib.load_or_build(cfg, folder.parent, progress=progress)
     t_corpus = time.perf_counter() - t0
     x = images.astype(np.float32) / 255.0
     norm = (x.mean((0, 1, 2)).tolist(), (x.std((0, 1, 2)) + 1e-3).tolist())
+    state, history, t_train, t_first = _dino_steps(cfg, kind, images, norm, folder / "log.jsonl", progress)
+    teacher = jax.device_get(state["teacher"])
+    save_backbone(folder / BACKBONE_FILE, teacher["params"]["backbone"], teacher["batch_stats"].get("backbone", {}))
+    p = st["pretrain"]
+    steps, bs = int(p["steps"]), int(p["batch_size"])
+    meta = {"settings": _jsonable(st), "input_norm": {"mean": norm[0], "std": norm[1]},
+            "corpus": {"hash": cmeta.get("hash"), "size": len(images), "sim_available": cmeta.get("sim_available"),
+                       "kinds": {k: cmeta["kinds"].count(k) for k in set(cmeta["kinds"])}},
+            "final": history[-1] if history else {}, "first": history[0] if history else {},
+            "timings": {"corpus_s": round(t_corpus, 1), "train_s": round(t_train, 1),
+                        "compile_s": round(t_first or 0.0, 1),
+                        "img_per_s": round(steps * bs / max(t_train - (t_first or 0), 1e-9), 1)},
+            "backend": jax.default_backend()}
+    _atomic_write(folder / META_FILE, json.dumps(meta, indent=1).encode())
+    if progress:
+        print(f"pretrain[{kind}]: {steps} steps in {t_train:.0f}s, loss {meta['first'].get('loss', 0):.3f} -> "
+              f"{meta['final'].get('loss', 0):.3f}; saved {folder / BACKBONE_FILE}")
+    return meta
+
+
+def _dino_steps(cfg: dict, kind: str, images: np.ndarray, norm, log_path: Path, progress: bool):
+    """(state, logged metrics, train seconds, first-step seconds) of the DINO steps on `images`; every 10th
+    step's metrics go to `log_path`, and a non-finite loss stops the run."""
+    from tqdm import tqdm
+
+    st = settings(cfg, kind)
+    p = st["pretrain"]
     key = jax.random.PRNGKey(st["seed"])
     state = init_state(cfg, kind, jax.random.fold_in(key, 1))
     update = None
     aug_key = jax.random.fold_in(key, 2)
     bs, steps, S = int(p["batch_size"]), int(p["steps"]), st["input_size"]
-    log_path = folder / "log.jsonl"
     log = open(log_path, "w")
     history, t_first = [], None
     bar = tqdm(range(steps), desc=f"pretrain {kind}", disable=not progress)
@@ -367,22 +394,7 @@ def pretrain(cfg: dict, kind: str, folder, progress: bool = True) -> dict:
                             fstd=f"{m['feature_std']:.3f}")
     log.close()
     jax.block_until_ready(state)
-    t_train = time.perf_counter() - t1
-    teacher = jax.device_get(state["teacher"])
-    save_backbone(folder / BACKBONE_FILE, teacher["params"]["backbone"], teacher["batch_stats"].get("backbone", {}))
-    meta = {"settings": _jsonable(st), "input_norm": {"mean": norm[0], "std": norm[1]},
-            "corpus": {"hash": cmeta.get("hash"), "size": len(images), "sim_available": cmeta.get("sim_available"),
-                       "kinds": {k: cmeta["kinds"].count(k) for k in set(cmeta["kinds"])}},
-            "final": history[-1] if history else {}, "first": history[0] if history else {},
-            "timings": {"corpus_s": round(t_corpus, 1), "train_s": round(t_train, 1),
-                        "compile_s": round(t_first or 0.0, 1),
-                        "img_per_s": round(steps * bs / max(t_train - (t_first or 0), 1e-9), 1)},
-            "backend": jax.default_backend()}
-    _atomic_write(folder / META_FILE, json.dumps(meta, indent=1).encode())
-    if progress:
-        print(f"pretrain[{kind}]: {steps} steps in {t_train:.0f}s, loss {meta['first'].get('loss', 0):.3f} -> "
-              f"{meta['final'].get('loss', 0):.3f}; saved {folder / BACKBONE_FILE}")
-    return meta
+    return state, history, time.perf_counter() - t1, t_first
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
