@@ -10,14 +10,10 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("ffjax", "configs", "experiments")
 MAX_LINES = 80
-# Files whose functions must stay under MAX_LINES (issue 15); ffjax/train joins when its loop is split.
+# Files whose functions must stay under MAX_LINES (issue 15; ffjax/train's are checked in tests/test_train.py).
 SHORT_FUNCTIONS = ("experiments/kernel.py",)
-# Circles being removed in issue 15 by other changes, allowed until then (delete an entry when its circle is gone):
+# Circles allowed until a change removes them (delete the entry then):
 KNOWN_CYCLES = {
-    # the benchmark owner moves measure_decoders (a benchmark) out of heads.py
-    frozenset({"ffjax.models.heads", "ffjax.models.model"}): "measure_decoders in heads.py imports model.py",
-    # the configs owner
-    frozenset({"ffjax.sim.optics", "ffjax.sim.sensors"}): "optics.py and sensors.py import each other",
     # found by this test, no change assigned yet (all four imports are inside functions): cli imports checkpoint's
     # error classes, checkpoint.load_checkpoint imports ffjax.data, data.write_csv imports csv_layout, whose main
     # imports cli
@@ -132,7 +128,7 @@ def test_no_import_cycles(graph):
 
 
 @pytest.mark.parametrize("cycle", list(KNOWN_CYCLES), ids=lambda c: "-".join(sorted(m.rsplit(".", 1)[1] for m in c)))
-@pytest.mark.xfail(reason="a circle issue 15 removes in another change (see KNOWN_CYCLES)", strict=False)
+@pytest.mark.xfail(reason="a known circle, allowed until a change removes it (see KNOWN_CYCLES)", strict=False)
 def test_known_cycle_is_gone(graph, cycle):
     assert sorted(cycle) not in _cycles(graph), _path(graph, sorted(cycle))
 
