@@ -162,6 +162,7 @@ def test_only_parts_write_their_own_report(tmp_path):
     res = bench.run_only("loop", plan, tmp_path / "loop", log=lambda *_: None)
     le = res["data"]["loop_efficiency"]["val_every_2"]
     assert len(le["rounds"]) == 2 and le["efficiency_cpu"] > 0 and le["startup_s"] > 0
+    assert le["staged_batches"] >= 1 and le["fixed_ms"] > 0 and le["efficiency_training_fixed"] > 0
     assert "efficiency without evaluation" in (tmp_path / "loop" / "report.md").read_text()
     res = bench.run_only("bf16", plan, tmp_path / "bf16", log=lambda *_: None)
     assert set(res["bf16_methods"]) == {"resnet_rd"} and res["ratios"]["speedup_bf16_resnet_rd"] > 0

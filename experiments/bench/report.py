@@ -237,19 +237,20 @@ def loop_table(le: dict | None) -> str:
     if not le:
         return ""
     head = ("\nThe training loop (`ffjax.train.loop.train`: data pipeline, logs, checkpoints, validation) against "
-            "its own jitted step on one ready batch, over the same steps at the same batch. The loop's clock runs "
-            "from its warm-up steps to train()'s return; one-time startup (preprocessing, compiling) is outside "
-            "it. efficiency = pure step time / loop time; without evaluation = the same with the loop's "
+            "its own jitted step over the same steps at the same batch, on the loop's own batches staged on the "
+            "device (pure step) and on one fixed batch (fixed, which stays in the CPU's caches). The loop's clock "
+            "runs from its warm-up steps to train()'s return; one-time startup (preprocessing, compiling) is "
+            "outside it. efficiency = pure step time / loop time; without evaluation = the same with the loop's "
             "evaluation time (feature-norm refresh, validation, best checkpoint) taken out of the loop time; "
             "CPU = the ratio of process CPU seconds (all threads), which other processes' load moves far less. "
             "Median of the rounds (by efficiency); every round in results.json.\n\n")
     return head + md_table(
-        ["val_every (epochs)", "steps", "steps/epoch", "loop ms/step", "pure step ms", "efficiency",
-         "efficiency without evaluation", "evaluation share", "CPU efficiency",
-         "rounds: efficiency / without evaluation / CPU", "load"],
+        ["val_every (epochs)", "steps", "steps/epoch", "loop ms/step", "pure step ms", "fixed-batch step ms",
+         "efficiency", "efficiency without evaluation", "the same against the fixed batch", "evaluation share",
+         "CPU efficiency", "rounds: efficiency / without evaluation / CPU", "load"],
         [[v["val_every"], v["steps"], v["steps_per_epoch"], _f(v["loop_ms"]), _f(v["pure_ms"]),
-          _f(v["efficiency"], 3), _f(v["efficiency_training"], 3), _f(v["eval_share"], 3),
-          _f(v.get("efficiency_cpu"), 3),
+          _f(v.get("fixed_ms")), _f(v["efficiency"], 3), _f(v["efficiency_training"], 3),
+          _f(v.get("efficiency_training_fixed"), 3), _f(v["eval_share"], 3), _f(v.get("efficiency_cpu"), 3),
           "; ".join(f"{_f(x['efficiency'], 3)} / {_f(x['efficiency_training'], 3)} / "
                     f"{_f(x.get('efficiency_cpu'), 3)}" for x in v.get("rounds", [v])),
           "-".join(_f(x) for x in v.get("load1", []))]

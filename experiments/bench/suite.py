@@ -300,7 +300,8 @@ def run_loop(plan: dict, src, size: int, batch: int) -> dict:
     out = {}
     for v, rs in runs.items():
         rs = sorted(rs, key=lambda r: r["efficiency"])
-        keep = ("efficiency", "efficiency_training", "efficiency_cpu", "loop_ms", "pure_ms", "eval_s", "load1")
+        keep = ("efficiency", "efficiency_training", "efficiency_cpu", "efficiency_training_fixed", "loop_ms",
+                "pure_ms", "fixed_ms", "eval_s", "load1")
         out[f"val_every_{v}"] = {**rs[len(rs) // 2], "rounds": [{k: r[k] for k in keep} for r in rs]}
     return out
 
