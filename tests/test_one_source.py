@@ -2,6 +2,7 @@
 a module, an entry in models.BACKBONES and a config section; the config keys added for knobs the code read
 as constants leave numbers and existing data folders as they were."""
 
+import dataclasses
 import json
 import sys
 import types
@@ -26,7 +27,7 @@ def test_a_new_sensor_is_one_entry_in_sensors_py(monkeypatch):
 PRESETS["toy"] = Sensor(  # a bare-LED sensor with its own gel: two white LEDs, landscape 120x160
     name="toy", gel_id=1, gel=Gel(young_mpa=0.4, shear_mpa=0.13, thickness_mm=4.0, texture_seed=5),
     leds=(LED(0, 5.0, (1.0, 1.0, 1.0)), LED(180, 5.0, (1.0, 0.9, 0.8))), native_size=(120, 160),
-    native_mm_per_px=0.12, falloff=2.0, one_gel=True,
+    native_mm_per_px=0.12, falloff=2.0,
 )
 '''
     src = Path(sensors.__file__).read_text()
@@ -53,6 +54,8 @@ def test_sensor_names_have_one_source():
     check = configs.RULES["data.train_sensor"]
     assert all(check(k) is None for k in sim.SENSOR_NAMES) and check("mini-4-gel1")
     assert sim.get_sensor("mini-2", 3) is sim.get_sensor("mini-2-gel3")
+    # a sensor derived from a preset (the pretraining corpus's) keeps its key, and with it its background noise
+    assert dataclasses.replace(sim.get_sensor("digit"), name="rand-0").key == "rand-0-gel1"
 
 
 class _Toy(nn.Module):

@@ -56,12 +56,12 @@ class Sensor:
     dome_radius_mm: float | None = None  # DIGIT's curved gel; None = flat pad
     unevenness: float = 0.06  # low-frequency albedo variation of the pad (non-uniform background)
     falloff: float = 1.0  # LED irradiance ~ distance^-falloff (1: light guides spread it; 2: bare LED)
-    one_gel: bool = False  # the gel is part of the sensor (DIGIT): its key is its name, without "-gel<id>"
 
     @property
     def key(self) -> str:
-        """Its name in SENSOR_NAMES: "mini-2-gel3", "digit"."""
-        return self.name if self.one_gel else f"{self.name}-gel{self.gel_id}"
+        """Its name in SENSOR_NAMES: "mini-2-gel3"; a sensor whose name alone is a PRESETS key ("digit", its gel
+        part of it) goes by its name. Derived sensors (the pretraining corpus's "rand-3") get "-gel<id>"."""
+        return self.name if self.name in PRESETS else f"{self.name}-gel{self.gel_id}"
 
     @property
     def fov_mm(self) -> tuple[float, float]:
@@ -136,7 +136,7 @@ PRESETS: dict[str, Sensor] = {f"{unit}-gel{gel}": _mini(unit, gel) for unit in _
         leds=(LED(90, 4.0, (1.0, 0.15, 0.1), 1.2, 14.0), LED(210, 4.0, (0.1, 1.0, 0.15), 1.2, 14.0),
               LED(330, 4.0, (0.1, 0.2, 1.0), 1.3, 14.0)),
         ambient=(0.06, 0.06, 0.07), albedo=(0.8, 0.8, 0.8), brightness=120.0, vignette=0.4, blur_px=1.2,
-        noise_std=4.0, dome_radius_mm=60.0, unevenness=0.08, falloff=1.6, one_gel=True,
+        noise_std=4.0, dome_radius_mm=60.0, unevenness=0.08, falloff=1.6,
     ),
 }
 MINI_NAMES = tuple(_MINIS)
@@ -148,7 +148,7 @@ def get_sensor(name: str, gel: int = 1) -> Sensor:
     """A sensor preset by unit and gel ("mini-1".."mini-3" with gel 1..3; "digit", gel 1) or by its key in
     SENSOR_NAMES ("mini-2-gel3", "digit")."""
     if name in PRESETS:
-        if gel != 1 and PRESETS[name].one_gel:
+        if gel != 1 and PRESETS[name].name == name:  # a sensor with one gel of its own (DIGIT)
             raise ValueError(f"{name} has one gel of its own; got gel={gel}")
         return PRESETS[name]
     if f"{name}-gel{gel}" in PRESETS:
