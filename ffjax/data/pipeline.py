@@ -8,9 +8,12 @@ record inside grain (optionally in `worker_count` processes), for splits too lar
 
 from __future__ import annotations
 
+import sys
+
 import grain
 import numpy as np
 
+from ffjax.data import epoch_order
 from ffjax.data.preprocess import preprocess_depth, preprocess_image
 from ffjax.data.stats import Stats, source_background
 
@@ -60,6 +63,37 @@ class Gather:
         return {k: v[idx] for k, v in self.arrays.items()}
 
 
+class ShuffledIndexBatches(grain.MapDataset):
+    """Batch j of indices into [0, n), reshuffled every epoch, endless: the same batches as
+    `MapDataset.range(n).shuffle(seed).repeat(None).batch(batch_size, drop_remainder=True)` (tested), from a
+    whole epoch's permutation computed at once (`epoch_order`) instead of one grain call per element."""
+
+    def __init__(self, n: int, batch_size: int, seed: int):
+        super().__init__()
+        self.n, self.batch_size, self.seed = int(n), int(batch_size), int(seed)
+        self._perms: dict[int, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return sys.maxsize // self.batch_size
+
+    def __str__(self) -> str:
+        return f"ShuffledIndexBatches(n={self.n}, batch_size={self.batch_size}, seed={self.seed})"
+
+    def _perm(self, epoch: int) -> np.ndarray:
+        if epoch not in self._perms:
+            # a batch spans at most two epochs: keep the one before this
+            self._perms = {e: p for e, p in self._perms.items() if e == epoch - 1}
+            self._perms[epoch] = epoch_order.permutation(self.n, (self.seed + epoch) % 2**32)
+        return self._perms[epoch]
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return self.slice(index)
+        pos = index * self.batch_size + np.arange(self.batch_size)
+        epochs, k = np.divmod(pos, self.n)
+        return np.concatenate([self._perm(int(e))[k[epochs == e]] for e in np.unique(epochs)])
+
+
 def _mark_flags_parsed():
     # grain 0.2.18 worker processes read absl flags and raise UnparsedFlagAccessError unless parsed.
     from absl import flags
@@ -84,6 +118,9 @@ def make_dataset(source, stats: Stats, input_size: int, batch_size: int, seed: i
         in_memory = arrays is not None or (worker_count == 0 and fits_in_memory(n, input_size))
     if in_memory:
         arrays = arrays if arrays is not None else load_arrays(source, stats, input_size)
+        if shuffle and process_count == 1 and num_epochs is None and drop_remainder:  # the training path
+            ds = ShuffledIndexBatches(len(arrays["force"]), batch_size, seed).map(Gather(arrays))
+            return ds.to_iter_dataset(grain.ReadOptions(num_threads=0))
         ds = grain.MapDataset.range(len(arrays["force"]))
     else:
         ds = grain.MapDataset.source(source)
