@@ -58,6 +58,7 @@ import jax
 import numpy as np
 
 from ffjax import data as fdata
+from ffjax.jsontree import retuple
 
 CHANNELS = "RGB"
 BUNDLE_FORMAT = "ffjax.predictor/1"
@@ -175,15 +176,6 @@ class Checkpoint:
         return models.build(self.cfg["model"], self.spec, self.input_size)
 
 
-def _tuples(x):
-    """JSON made tuples into lists; linen module fields must be hashable, so turn them back."""
-    if isinstance(x, dict):
-        return {k: _tuples(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return tuple(_tuples(v) for v in x)
-    return x
-
-
 def _read_json(path: Path) -> dict | None:
     """The JSON object in `path` (None if there is no file); CheckpointError naming the file otherwise."""
     from ffjax.train.checkpoint import CheckpointError
@@ -266,7 +258,7 @@ def _read_checkpoint(folder: Path, which: str, frame_size) -> Checkpoint:
                              f"use it to start training (--init), then load the run")
         model_cfg, variables = store.load(folder)
         cfg = configs.get("paper")
-        cfg["model"].update(_tuples(model_cfg))
+        cfg["model"].update(retuple(model_cfg))
         size = int(meta.get("input_size", 224))
         stats_d = _read_json(folder / STATS_JSON) or {**RELEASE_STATS, "input_size": size}
         stats = fdata.Stats.from_dict(stats_d)
@@ -286,8 +278,7 @@ def _read_bundle(folder: Path, info: dict, frame_size) -> Checkpoint:
     save_bundle; older bundles carry none), and every tensor's shape against the model model.json describes."""
     from flax import serialization
 
-    from ffjax import models, registry
-    from ffjax.train.checkpoint import CheckpointError
+    from ffjax.train.checkpoint import CheckpointError, saved_model
 
     missing = [k for k in _BUNDLE_KEYS if k not in info]
     if missing:
@@ -299,16 +290,12 @@ def _read_bundle(folder: Path, info: dict, frame_size) -> Checkpoint:
                               f"from the one in {MODEL_JSON}; copy or export the bundle again")
     try:
         variables = serialization.msgpack_restore(raw)
-        cfg = {**info["cfg"], "model": _tuples(info["cfg"]["model"])}
-        stats = fdata.Stats.from_dict(info["stats"])
-        spec = registry.get(info["method"])
-        size = int(info["input_size"])
-        model = models.build(cfg["model"], spec, size)
+        saved = saved_model(info, folder / MODEL_JSON)  # the reader training runs use too
     except Exception as e:  # noqa: BLE001 - msgpack, config and registry errors all mean one thing here
         raise CheckpointError(f"cannot read the bundle {folder} ({type(e).__name__}: {str(e)[:200]}): "
                               f"{VARIABLES} truncated or {MODEL_JSON} not ffjax's") from e
-    abstract = jax.eval_shape(lambda x: model.init(jax.random.PRNGKey(0), x, train=False),
-                              jax.ShapeDtypeStruct((1, size, size, 3), np.float32))
+    cfg, stats, spec, size = saved.cfg, saved.stats, saved.spec, saved.input_size
+    abstract = saved.abstract_variables()
     want = {k: abstract[k] for k in ("params", "batch_stats") if abstract.get(k)}
     got = {k: variables.get(k) for k in want}
     ok = jax.tree.structure(want) == jax.tree.structure(got) and all(

@@ -1,10 +1,17 @@
-"""The objective as data (issue 15). Worked example: a loss term added in one place (an entry of
-`objective.TERMS`, its weight a Method field) appears in the step's metrics and loss, the train log,
-validation and epochs.csv."""
+"""The objective as data and method identity in the checkpoint (issue 15).
+
+Worked example: a loss term added in one place (an entry of `objective.TERMS`, its weight a Method field)
+appears in the step's metrics and loss, the train log, validation and epochs.csv. And a sweep variant (a
+Method never registered) trains, then loads in a fresh process from its model.json alone."""
 
 import csv
 import dataclasses
 import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -17,6 +24,8 @@ from ffjax import registry, train
 from ffjax.registry import Method
 from ffjax.train import loop as loop_lib
 from ffjax.train import objective
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -71,3 +80,43 @@ def _batch(cfg):
     return {"image": rng.normal(size=(n, s, s, 3)).astype(np.float32),
             "depth": rng.uniform(size=(n, s, s)).astype(np.float32),
             "force": rng.uniform(0, 5, size=(n, 3)).astype(np.float32)}
+
+
+def test_a_sweep_variant_loads_in_a_fresh_process(tiny_data, tmp_path):
+    base = registry.get("dino_rd")
+    variant = dataclasses.replace(base, name="dino_rd_b3_a2", paper_name="DINO RD (beta 3, alpha 2)", beta=3.0,
+                                  alpha=2.0, pretrained=False)
+    assert variant.name not in registry.names()  # never registered
+    cfg = configs.get("smoke", {"train.epochs": 1, "train.batch_size": 8})
+    train.train(cfg, variant, tiny_data, tmp_path, progress=False)
+    _, spec, _, variables = train.load_checkpoint(tmp_path)
+    assert spec == variant
+
+    code = textwrap.dedent(f"""
+        import dataclasses, json
+        import jax, numpy as np
+        from ffjax import inference, registry, train
+        assert {variant.name!r} not in registry.names()
+        cfg, spec, stats, variables = train.load_checkpoint({str(tmp_path)!r})
+        model = inference.load({str(tmp_path)!r})
+        print(json.dumps({{"spec": dataclasses.asdict(spec), "predictor": model.checkpoint.spec.name,
+                          "sum": float(sum(np.abs(x).sum() for x in jax.tree.leaves(variables)))}}))
+    """)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["spec"] == dataclasses.asdict(variant) and got["predictor"] == variant.name
+    assert got["sum"] == pytest.approx(float(sum(np.abs(x).sum() for x in jax.tree.leaves(variables))), rel=1e-6)
+
+
+def test_an_old_model_json_without_the_spec_falls_back_to_the_registry(tiny_data, tmp_path):
+    cfg = configs.get("smoke", {"train.epochs": 1, "train.batch_size": 8})
+    train.train(cfg, "dino_r", tiny_data, tmp_path, progress=False)
+    path = tmp_path / "model.json"
+    info = json.loads(path.read_text())
+    del info["spec"]
+    path.write_text(json.dumps(info))
+    assert train.read_model(tmp_path).spec == registry.get("dino_r")
+    assert train.load_checkpoint(tmp_path)[1] == registry.get("dino_r")

@@ -3,12 +3,22 @@
     state = train.init_state(cfg, spec, key, input_size)          # params, batch_stats, opt_state, key
     state, m = train.train_step(state, batch)                      # jitted once; m: loss, force_l1, ...
     summary = train.train(cfg, "dino_rd", "data/quick", "runs/x")  # or python -m ffjax.train
-    cfg, spec, stats, variables = train.load_checkpoint("runs/x", which="best")
+    cfg, spec, stats, variables = train.load_checkpoint("runs/x", which="best")   # any process, any variant
+    saved = train.read_model("runs/x")                              # model.json: cfg, spec, stats, input size
+
+The objective (the loss terms, each declared once) lives in `ffjax.train.objective`.
 
 Pretraining (self-supervised backbones) lives in `ffjax.train.pretrain`.
 """
 
-from ffjax.train.checkpoint import Checkpointer, load_checkpoint, read_model_json, write_model_json
+from ffjax.train.checkpoint import (
+    Checkpointer,
+    SavedModel,
+    load_checkpoint,
+    read_model,
+    read_model_json,
+    write_model_json,
+)
 from ffjax.train.loop import NonFiniteLossError, open_sources, train, validate
 from ffjax.train.state import (
     Labeler,
@@ -26,6 +36,7 @@ __all__ = [
     "Checkpointer",
     "Labeler",
     "NonFiniteLossError",
+    "SavedModel",
     "TrainState",
     "abstract_state",
     "eval_step",
@@ -35,6 +46,7 @@ __all__ = [
     "make_mesh",
     "make_optimizer",
     "open_sources",
+    "read_model",
     "read_model_json",
     "replace_backbone",
     "replicate",

@@ -1,6 +1,6 @@
 """Run folders: orbax checkpoints (latest + best) and model.json, so a run is self-describing.
 
-    RUN/model.json        cfg (full), method, input_size, data Stats, force range
+    RUN/model.json        cfg (full), method and its full spec, input_size, data Stats, force range
     RUN/checkpoints/<step>/  packed (params, batch_stats, opt_state, step, rng key as one buffer per dtype,
                           packed.py; older runs: state, the same as a tensor tree), data (grain iterator
                           state, JSON), meta (epoch, best so far, epoch accumulators, the packed layout; JSON)
@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
+from ffjax.jsontree import retuple
 from ffjax.train import packed
 
 MODEL_JSON = "model.json"
@@ -477,42 +478,82 @@ def read_model_json(run_dir) -> dict:
     return info
 
 
-def _retuple(saved, template):
-    """JSON turned tuples into lists; give them back where the preset has a tuple."""
-    if isinstance(saved, dict) and isinstance(template, dict):
-        return {k: _retuple(v, template.get(k)) for k, v in saved.items()}
-    if isinstance(saved, list) and isinstance(template, tuple):
-        return tuple(saved)
+@dataclasses.dataclass(frozen=True)
+class SavedModel:
+    """What a model.json describes: the config (tuples restored), the method (its full spec), the data
+    statistics and the input size; `info` is the file's JSON as read."""
+
+    info: dict
+    cfg: dict
+    spec: object
+    stats: object
+    input_size: int
+
+    def build(self):
+        from ffjax import models
+
+        return models.build(self.cfg["model"], self.spec, self.input_size)
+
+    def abstract_variables(self) -> dict:
+        """{"params", "batch_stats"} as shapes and dtypes (nothing allocated)."""
+        model, size = self.build(), self.input_size
+        dummy = jax.ShapeDtypeStruct((1, size, size, 3), np.float32)
+        abstract = jax.eval_shape(lambda x: model.init(jax.random.PRNGKey(0), x, train=False), dummy)
+        return {"params": abstract["params"], "batch_stats": abstract.get("batch_stats", {})}
+
+
+def read_model(folder) -> SavedModel:
+    """The model a run folder's (or a bundle's) model.json describes; CheckpointError when it cannot be built."""
+    path = Path(folder) / MODEL_JSON
+    return saved_model(read_model_json(folder), path)
+
+
+def saved_model(info: dict, path) -> SavedModel:
+    """SavedModel from model.json's JSON (`path` names it in errors). The method comes from its "spec", so a
+    variant that was never registered in this process loads; a model.json written before the spec was recorded
+    names a registry method."""
+    import configs
+    from ffjax import data
+
+    cfg = info["cfg"]
+    try:
+        cfg = retuple(cfg, configs.get(cfg.get("preset", "smoke")))
+    except ValueError:  # a preset this ffjax lacks: the config's lists stay lists
+        pass
+    try:
+        saved = SavedModel(info, cfg, method_of(info), data.Stats.from_dict(info["stats"]), int(info["input_size"]))
+        saved.build()
+    except (KeyError, TypeError, ValueError) as e:
+        raise CheckpointError(f"{path} describes a model this ffjax cannot build: {e}") from e
     return saved
+
+
+def method_of(info: dict):
+    """The registry Method of model.json's JSON: from its full "spec" (every Method field), else the registry
+    entry its name is (a model.json written before the spec was recorded); ValueError for fields this ffjax
+    lacks."""
+    from ffjax import registry
+
+    spec = info.get("spec")
+    if not (isinstance(spec, dict) and set(spec) != {"name"}):
+        return registry.get(info["method"])
+    unknown = sorted(set(spec) - {f.name for f in dataclasses.fields(registry.Method)})
+    if unknown:
+        raise ValueError(f"method {spec.get('name')!r} has fields this ffjax does not know: {unknown}")
+    return registry.Method(**spec)
 
 
 def load_checkpoint(run_dir, which: str = "best"):
     """(cfg, spec, stats, variables) of a run: the best-validation weights or the latest ones.
 
-    Works for any run folder written by `train` (model.json says how to rebuild the model).
+    Works for any run folder written by `train`, whichever process trained it: model.json says how to rebuild
+    the model (the method's full spec included, so sweep variants need no registering).
     """
-    import configs
-    from ffjax import data, models, registry
-
     if which not in ("best", "latest"):
         raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
     run_dir = Path(run_dir).absolute()
-    info = read_model_json(run_dir)
-    cfg = info["cfg"]
-    try:
-        cfg = _retuple(cfg, configs.get(cfg.get("preset", "smoke")))
-    except ValueError:
-        pass
-    try:
-        spec = registry.get(info["method"])
-        stats = data.Stats.from_dict(info["stats"])
-        size = int(info["input_size"])
-        model = models.build(cfg["model"], spec, size)
-    except (KeyError, TypeError, ValueError) as e:
-        raise CheckpointError(f"{run_dir / MODEL_JSON} describes a model this ffjax cannot build: {e}") from e
-    dummy = jax.ShapeDtypeStruct((1, size, size, 3), np.float32)
-    abstract = jax.eval_shape(lambda x: model.init(jax.random.PRNGKey(0), x, train=False), dummy)
-    target = {"params": abstract["params"], "batch_stats": abstract.get("batch_stats", {})}
+    saved = read_model(run_dir)
+    target = saved.abstract_variables()
     folder = run_dir / ("best" if which == "best" else "checkpoints")
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder} not found: {run_dir} has no {which} checkpoint yet")
@@ -527,7 +568,7 @@ def load_checkpoint(run_dir, which: str = "best"):
     variables = {"params": out["params"]}
     if out.get("batch_stats"):
         variables["batch_stats"] = out["batch_stats"]
-    return cfg, spec, stats, variables
+    return saved.cfg, saved.spec, saved.stats, variables
 
 
 def _restore_variables(mgr, step: int, which: str, target: dict, path: Path) -> dict:

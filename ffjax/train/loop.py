@@ -43,7 +43,7 @@ from ffjax.train.checkpoint import (
     CheckpointError,
     atomic_write_text,
     check_writable,
-    read_model_json,
+    read_model,
     write_model_json,
 )
 from ffjax.train.state import init_state
@@ -368,15 +368,19 @@ def _open_run(cfg, spec, data, run_dir: Path, resume, init_backbone, init_variab
 
 def _resumed_stats(ckpt, run_dir: Path, cfg: dict, spec):
     """The data statistics the run was started with; refused when the folder holds another method's run."""
-    from ffjax import data as fdata
-
-    info = read_model_json(run_dir)
-    if info["method"] != spec.name:
+    try:
+        saved = read_model(run_dir)  # the reader inference and experiments use
+    except CheckpointError:
         ckpt.close()
-        raise CheckpointError(f"{run_dir} was trained with method {info['method']!r}, not {spec.name!r}")
-    stats = fdata.Stats.from_dict(info["stats"])
+        raise
+    if saved.spec.name != spec.name:
+        ckpt.close()
+        raise CheckpointError(f"{run_dir} was trained with method {saved.spec.name!r}, not {spec.name!r}")
+    stats = saved.stats
     # compared after the output affine is filled in, as model.json records it
-    changed = _diff(info["cfg"], json.loads(json.dumps(with_output_affine(cfg, stats))))
+    changed = _diff(saved.info["cfg"], json.loads(json.dumps(with_output_affine(cfg, stats))))
+    if dataclasses.is_dataclass(spec) and saved.spec != spec:  # e.g. another loss weight under the same name
+        changed += _diff(dataclasses.asdict(saved.spec), dataclasses.asdict(spec), "method.")
     if changed:  # allowed (e.g. more epochs), but the result then differs from an uninterrupted run
         warnings.warn(f"resuming {run_dir} with a changed config: {', '.join(changed)}", stacklevel=5)
     return stats
