@@ -200,3 +200,25 @@ def validate(cfg: dict) -> dict:
         head = f"invalid config{f' (preset {preset!r})' if preset else ''}: "
         raise ConfigError(head + ("; ".join(errs) if len(errs) < 2 else "\n  " + "\n  ".join(errs)))
     return cfg
+
+
+# -- keys that were constants ------------------------------------------------------------------------------
+# Knobs the code held as constants until issue 15 gave them keys, at those constants' values: what a config
+# without them (an older model.json) means. Caches keyed on config sections (data folders, trained runs,
+# pretrained backbones) hash `without_before_keys(cfg)`, so what was made before the keys existed stays valid.
+BEFORE_KEYS = {"data.train_sensor": "mini-1-gel1", "data.fz_min": 0.05, "data.tilt_max_deg": 7.0,
+               "data.shear_noise": 0.06, "model.vit.interpolate_offset": 0.1, "model.decoder.fast": True}
+
+
+def without_before_keys(cfg: dict) -> dict:
+    """A copy of `cfg` less the BEFORE_KEYS that hold their before values (a changed value stays: it is
+    another config)."""
+    out = copy.deepcopy(cfg)
+    for dotted, before in BEFORE_KEYS.items():
+        *parents, leaf = dotted.split(".")
+        node = out
+        for part in parents:
+            node = node.get(part) if isinstance(node, dict) else None
+        if isinstance(node, dict) and leaf in node and node[leaf] == before and type(node[leaf]) is type(before):
+            del node[leaf]
+    return out

@@ -77,3 +77,15 @@ def test_old_configs_without_the_new_keys_still_validate():
 def test_derive_refuses_a_key_the_parent_lacks():
     with pytest.raises(KeyError, match="train.epoch"):
         derive(base.CONFIG, {"train": {"epoch": 3}})
+
+
+def test_before_keys_are_left_out_of_cache_keys_while_they_hold_the_old_values():
+    for preset in configs.PRESETS:
+        cfg = configs.get(preset)
+        kept = _flat(configs.without_before_keys(cfg))
+        assert set(_flat(cfg)) - set(kept) == set(configs.BEFORE_KEYS), preset
+        assert all(kept[k] == v for k, v in _flat(cfg).items() if k in kept)
+    changed = configs.get("smoke", {"data.train_sensor": "digit", "model.decoder.fast": False})
+    kept = _flat(configs.without_before_keys(changed))
+    assert kept["data.train_sensor"] == "digit" and kept["model.decoder.fast"] is False
+    assert set(configs.BEFORE_KEYS) <= set(_flat(base.CONFIG))

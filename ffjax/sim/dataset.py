@@ -44,18 +44,18 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+import configs
 from ffjax.sim.sensors import MINI_NAMES, SENSOR_NAMES, get_sensor
 
 VERSION = 1
 # Generation knobs (cfg["data"]): every one decides the bytes on disk
 GEN_KEYS = ("render_size", "train_per_indenter", "val_per_indenter", "unseen_per_object",
             "sensor_test_per_indenter", "calib_samples", "fz_max", "shear_max", "shard_size")
-# Knobs that were constants here before they were config keys (configs/base.py holds the same defaults): a
-# config without them (an older model.json) means these values. fz_min, tilt_max_deg and shear_noise were
-# always part of a folder's config.json; the others enter it only when they differ from these values, so
-# every folder written before they were keys stays valid.
-BEFORE_KEYS = {"fz_min": 0.05, "tilt_max_deg": 7.0, "shear_noise": 0.06}
-TRAIN_SENSOR = "mini-1-gel1"  # data.train_sensor before it was a key
+# Knobs that were constants here before they were config keys, at those values (configs.BEFORE_KEYS): a config
+# without them (an older model.json) means these. fz_min, tilt_max_deg and shear_noise were always part of a
+# folder's config.json; train_sensor enters it only when it differs, so folders written before stay valid.
+BEFORE_KEYS = {k: configs.BEFORE_KEYS[f"data.{k}"] for k in ("fz_min", "tilt_max_deg", "shear_noise")}
+TRAIN_SENSOR = configs.BEFORE_KEYS["data.train_sensor"]
 _SENSORS_BEFORE = tuple(f"mini-{u}-gel{g}" for u in (1, 2, 3) for g in (1, 2, 3)) + ("digit",)
 CALIB_SHAPE = "sphere_big"
 SENSOR_KEYS = SENSOR_NAMES  # every sensor gets a Table II split and a calibration split
@@ -397,8 +397,6 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
 
 
 def main(argv=None):
-    import configs
-
     ap = argparse.ArgumentParser(prog="python -m ffjax.sim.dataset",
                                  description="Write every synthetic split (train/val/unseen/sensor/calib).")
     ap.add_argument("--preset", default="quick", choices=configs.PRESETS,
