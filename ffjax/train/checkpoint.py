@@ -513,7 +513,7 @@ def saved_model(info: dict, path) -> SavedModel:
     variant that was never registered in this process loads; a model.json written before the spec was recorded
     names a registry method."""
     import configs
-    from ffjax import data
+    from ffjax.data.stats import Stats  # the module, not the package: the package's CSV tools import the CLI
 
     cfg = info["cfg"]
     try:
@@ -521,7 +521,7 @@ def saved_model(info: dict, path) -> SavedModel:
     except ValueError:  # a preset this ffjax lacks: the config's lists stay lists
         pass
     try:
-        saved = SavedModel(info, cfg, method_of(info), data.Stats.from_dict(info["stats"]), int(info["input_size"]))
+        saved = SavedModel(info, cfg, method_of(info), Stats.from_dict(info["stats"]), int(info["input_size"]))
         saved.build()
     except (KeyError, TypeError, ValueError) as e:
         raise CheckpointError(f"{path} describes a model this ffjax cannot build: {e}") from e
