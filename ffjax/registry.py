@@ -20,6 +20,9 @@ class Method:
     frozen_backbone: backbone params get no updates (optax.set_to_zero), heads train.
     depth_head: add the depth decoder and its loss beta * MSE(depth); alpha weighs L1(force, N).
     beta defaults to 10 with a depth head and 0 without. lr_*_scale multiply cfg["train"]["lr_*"].
+    alpha and beta weigh the objective's terms (ffjax/train/objective.py: a term names the field its weight
+    comes from, so a new term's weight is a new field here). model.json records every field, so a variant
+    that is never registered still loads.
     """
 
     name: str
