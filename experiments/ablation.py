@@ -27,15 +27,14 @@ def main(argv=None) -> dict:
                                                                            "full": "52 min (3 seeds, before issue 13)"})
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
                     help=f"registry names (default: the paper set {', '.join(registry.PAPER_SET)})")
-    ap.add_argument("--seeds", type=int, default=None, help="seeds per method (default: 1, 3 at full)")
+    ap.add_argument("--seeds", type=int, default=None,
+                    help="seeds per method (default: the preset's `seeds`: 1, 3 at full)")
     args = ap.parse_args(argv)
     cfg = common.config_from_args(ap, args)
     methods = args.methods or list(registry.PAPER_SET)
     for m in methods:
         registry.get(m)  # unknown names fail here, before any work
-    seeds = args.seeds or kernel.DEFAULT_SEEDS[args.preset]
-    if seeds < 1:
-        ap.error("--seeds must be at least 1")
+    seeds = common.n_seeds(ap, args, cfg)
     out = Path(args.out or common.ROOT / "results" / f"ablation-{args.preset}")
     results = run(cfg, methods, seeds, out, data_dir=args.data, force=args.force, progress=not args.quiet)
     print(tables.console_summary(results))

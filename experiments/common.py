@@ -61,6 +61,16 @@ def config_from_args(ap, args) -> dict:
     return cfg
 
 
+def n_seeds(ap, args, cfg: dict) -> int:
+    """Seeds per method: --seeds, else the config's `seeds`; written into cfg, so the config a results.json
+    records says how many ran."""
+    n = args.seeds or cfg["seeds"]
+    if n < 1:
+        ap.error("--seeds must be at least 1")
+    cfg["seeds"] = n
+    return n
+
+
 def ablation_folder(ap, given, preset: str) -> Path:
     """The ablation results folder whose runs an experiment reuses: `given` (--ablation), which must exist (a typo
     used to retrain everything silently), else results/ablation-<preset>."""

@@ -3,8 +3,9 @@
     python -m experiments.contact_probe --preset {smoke,quick,full} [--per-shape N] [--out DIR]
 
 For each training indenter and each unseen object (Table I), presses drawn as the dataset draws them
-(mini-1 gel 1, a sampling stream no split uses; Fz in the upper half of the range, where the errors are
-largest) are rendered twice, at Fz and at Fz + dF with the same pose and no camera noise. Per shape:
+(on the training sensor, data.train_sensor; a sampling stream no split uses; Fz in the upper half of the range,
+where the errors are largest) are rendered twice, at Fz and at Fz + dF with the same pose and no camera noise.
+Per shape:
 - contact area (mm^2) and its fraction of the pad; how often the contact reaches the pad's border (part of
   its outline, where a flat face shows its depth, is then outside the image);
 - sensitivity: RMS change of the frame per newton (8-bit levels / N), at native resolution and at the
@@ -25,7 +26,6 @@ from tqdm import tqdm
 from experiments import common
 from experiments.tables import save_png
 
-SENSOR = "mini-1-gel1"
 STREAM = 2000  # sampling stream no dataset split (or experiments.stability) uses
 DF = 1.0  # N: the Fz step of the sensitivity
 EDGE_MM = 1.0
@@ -52,9 +52,9 @@ def probe_shape(shape: str, cfg: dict, n: int, native) -> dict:
     from ffjax.sim import dataset
     from ffjax.sim.press import body_heights
 
-    sensor = sim.get_sensor(SENSOR)
+    sensor = sim.get_sensor(cfg["data"]["train_sensor"])
     train_size = dataset.render_size(sensor, cfg["data"]["render_size"])
-    spec = dataset.SplitSpec("contact_probe", SENSOR, (shape,), 4 * n, STREAM)
+    spec = dataset.SplitSpec("contact_probe", cfg["data"]["train_sensor"], (shape,), 4 * n, STREAM)
     p = dataset.sample_presses(spec, cfg)
     fz_max = float(cfg["data"]["fz_max"])
     keep = np.nonzero(p["force"][:, 2] >= fz_max / 2)[0][:n]
@@ -107,14 +107,15 @@ def run(cfg: dict, out, per_shape: int | None = None, progress: bool = True) -> 
     out = Path(out).absolute()
     out.mkdir(parents=True, exist_ok=True)
     n = per_shape or PER_SHAPE[cfg["preset"]]
-    native = NATIVE.get(cfg["preset"], sim.get_sensor(SENSOR).native_size)
+    native = NATIVE.get(cfg["preset"], sim.get_sensor(cfg["data"]["train_sensor"]).native_size)
     t0 = time.perf_counter()
     groups = {"indenter": sim.INDENTERS, "object": sim.UNSEEN_OBJECTS}
     shapes = {}
     for kind, names in groups.items():
         for s in tqdm(names, desc=f"contact probe: {kind}s", disable=not progress):
             shapes[s] = {"kind": kind, **probe_shape(s, cfg, n, tuple(native))}
-    results = {"preset": cfg["preset"], "commit": common.git_commit(), "sensor": SENSOR, "per_shape": n,
+    results = {"preset": cfg["preset"], "commit": common.git_commit(), "sensor": cfg["data"]["train_sensor"],
+               "per_shape": n,
                "native_size": list(native), "train_size": list(cfg["data"]["render_size"]), "df_n": DF,
                "edge_mm": EDGE_MM, "shapes": shapes, "time_s": round(time.perf_counter() - t0, 1)}
     common.write_json(out / "results.json", results)

@@ -25,8 +25,6 @@ import numpy as np
 
 from experiments import common, paper_numbers
 
-# Seeds per method when --seeds is not given, per preset.
-DEFAULT_SEEDS = {"smoke": 1, "quick": 1, "full": 3, "gpu": 1, "paper": 1}
 # Keys the config gained in issue 15, at the values the code used before they were keys. The training key
 # leaves them out while they hold these values, so runs trained before the keys existed stay valid (reused).
 BEFORE_KEYS = {("data", "train_sensor"): "mini-1-gel1", ("data", "fz_min"): 0.05, ("data", "tilt_max_deg"): 7.0,

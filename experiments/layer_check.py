@@ -2,7 +2,7 @@
 
     python -m experiments.layer_check --preset {smoke,quick,full} [--out DIR]
 
-Every shape is pressed at the pad centre, untilted, on mini-1 gel 1, at Fz = F and F + 1 N, twice: by
+Every shape is pressed at the pad centre, untilted, on data.train_sensor, at Fz = F and F + 1 N, twice: by
 `ffjax.sim.press` (what makes the data: the layer solved on its ~0.25 mm grid, with local large-strain
 stiffening, rendered with the body's detail; until issue 13, independent neo-Hookean columns with a
 smoothing kernel) and by `ffjax.sim.elastic_layer` alone (small-strain, incompressible, bonded to the
@@ -30,7 +30,7 @@ import numpy as np
 from tqdm import tqdm
 
 from experiments import common
-from experiments.contact_probe import DF, SENSOR, change_per_newton
+from experiments.contact_probe import DF, change_per_newton
 from experiments.tables import save_png
 
 FORCES = (4.0, 8.0)  # N: mid-range presses; the image change is measured from each to +DF
@@ -157,7 +157,7 @@ def run(cfg: dict, out, progress: bool = True) -> dict:
     out = Path(out).absolute()
     out.mkdir(parents=True, exist_ok=True)
     preset = cfg["preset"]
-    sensor = sim.get_sensor(SENSOR)
+    sensor = sim.get_sensor(cfg["data"]["train_sensor"])
     div = SMOKE["grid_div"] if preset == "smoke" else 2
     grid = (sensor.native_size[0] // div, sensor.native_size[1] // div)
     train_size = dataset.render_size(sensor, cfg["data"]["render_size"])
@@ -167,7 +167,8 @@ def run(cfg: dict, out, progress: bool = True) -> dict:
     for name, (kind, shape) in tqdm(_shapes(preset).items(), desc="layer check", disable=not progress):
         shapes[name] = {"kind": kind, **check_shape(shape, sensor, grid, train_size, forces)}
     g = sensor.gel
-    results = {"preset": preset, "commit": common.git_commit(), "sensor": SENSOR, "grid": list(grid),
+    results = {"preset": preset, "commit": common.git_commit(), "sensor": cfg["data"]["train_sensor"],
+               "grid": list(grid),
                "train_size": list(train_size), "forces": list(forces), "df_n": DF, "band_mm": BAND_MM,
                "gel": {"thickness_mm": g.thickness_mm, "young_mpa": g.young_mpa, "shear_mpa": g.shear_mpa},
                "margin_thicknesses": MARGIN_T, "shapes": shapes, "time_s": round(time.perf_counter() - t0, 1)}

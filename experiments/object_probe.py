@@ -21,7 +21,6 @@ import numpy as np
 
 from experiments import common
 
-SENSOR = "mini-1-gel1"  # the training sensor
 FZ, STEP_N = 5.0, 1.0  # signal: presses at FZ, changed by STEP_N
 
 
@@ -33,12 +32,13 @@ def _frame(sensor, shape, force, size, input_size, seed=0, noise=False):
     return preprocess.to_unit(s.image, s.background, input_size), s
 
 
-def signal(shapes, size=(48, 64), input_size=64) -> dict:
-    """Image energy per newton of Fz and of shear for each shape (see the module docstring)."""
+def signal(shapes, sensor_key: str, size=(48, 64), input_size=64) -> dict:
+    """Image energy per newton of Fz and of shear for each shape on the sensor `sensor_key` (the training
+    sensor; see the module docstring)."""
     from ffjax import sim
     from ffjax.sim.dataset import render_size
 
-    sensor = sim.get_sensor(SENSOR)
+    sensor = sim.get_sensor(sensor_key)
     size = render_size(sensor, size)
     pad_mm2 = float(np.prod(sensor.fov_mm))
     out = {}
@@ -101,9 +101,9 @@ def run_label(run) -> str:
 
 
 def markdown(res: dict) -> str:
-    sig, lines = res["signal"], []
+    sig, lines, sensor = res["signal"], [], res["sensor"]
     lines += [f"# Where the force is in the image, and how much of it is read (preset {res['preset']})", "",
-              f"Centred noiseless presses at Fz = {FZ:g} N on {SENSOR}, preprocessed at the training size; image "
+              f"Centred noiseless presses at Fz = {FZ:g} N on {sensor}, preprocessed at the training size; image "
               f"energy (sum of squared changes) of +{STEP_N:g} N Fz and of a {STEP_N:g} N shear. Camera noise between "
               "two frames of one press: "
               f"{np.mean([v['noise_energy'] for v in sig.values()]):.2f} per frame. Commit `{res['commit'][:7]}`.", ""]
@@ -124,7 +124,7 @@ def markdown(res: dict) -> str:
         lines.append(row)
     sensors = sorted({k for r in runs for k in res["readout"][r] if k.startswith("sensor/")})
     if sensors:
-        lines += ["", f"How much of each axis is read on every unit x gel (Table II's presses; training: {SENSOR}):",
+        lines += ["", f"How much of each axis is read on every unit x gel (Table II's presses; training: {sensor}):",
                   "", "| sensor |" + "".join(f" {run_label(r)}: slope Fx / Fy / Fz |" for r in runs),
                   "|---|" + "---|" * len(runs)]
         for k in sensors:
@@ -178,8 +178,8 @@ def main(argv=None) -> dict:
     out = Path(args.out or common.ROOT / "results" / f"object_probe-{cfg['preset']}")
     out.mkdir(parents=True, exist_ok=True)
     size = tuple(cfg["data"]["render_size"])
-    res = {"preset": cfg["preset"], "commit": common.git_commit(), "sensor": SENSOR,
-           "signal": signal(tuple(sim.INDENTERS) + tuple(sim.UNSEEN_OBJECTS), size=size,
+    res = {"preset": cfg["preset"], "commit": common.git_commit(), "sensor": cfg["data"]["train_sensor"],
+           "signal": signal(tuple(sim.INDENTERS) + tuple(sim.UNSEEN_OBJECTS), cfg["data"]["train_sensor"], size=size,
                             input_size=int(cfg["data"]["input_size"]))}
     if args.runs:
         res["seeds"] = sorted({int(Path(r).name[4:]) for r in args.runs if Path(r).name.startswith("seed")})

@@ -72,7 +72,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--sizes", nargs="+", default=None, metavar="SIZE", help=f"of {', '.join(SIZES)} (default: all)")
     ap.add_argument("--grid", choices=("lean", "full"), default="lean",
                     help="lean: all methods at the preset's size, the anchor method at the others")
-    ap.add_argument("--seeds", type=int, default=None, help="seeds per cell (default: as the ablation)")
+    ap.add_argument("--seeds", type=int, default=None, help="seeds per cell (default: the preset's `seeds`)")
     ap.add_argument("--ablation", default=None,
                     help="ablation results folder whose finished runs are reused for the preset's own size "
                          "(default: results/ablation-<preset>; 'none' to never reuse)")
@@ -87,7 +87,7 @@ def main(argv=None) -> dict:
     unknown = [s for s in sizes if s not in SIZES]
     if unknown:
         ap.error(f"unknown sizes {unknown}; choose from {', '.join(SIZES)}")
-    seeds = args.seeds or kernel.DEFAULT_SEEDS[args.preset]
+    seeds = common.n_seeds(ap, args, cfg)
     out = Path(args.out or common.ROOT / "results" / f"pareto-{args.preset}")
     reuse = None if args.ablation == "none" else common.ablation_folder(ap, args.ablation, args.preset)
     results = run(cfg, methods, sizes, seeds, out, data_dir=args.data, full_grid=args.grid == "full", force=args.force,

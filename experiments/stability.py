@@ -6,10 +6,10 @@
 Uses the ablation's trained checkpoints (DIR/results.json "checkpoints", default results/ablation-<preset>;
 a sweep_loss results folder works too); methods it lacks are trained with the ablation's own stages into
 DIR/runs. (1) Across seeds: each method's Table I / II error per seed (from the ablation's evaluations).
-(2) Factors: for each, a family of test sets rendered by the simulator (the 9 Table II indenters, mini-1
-gel 1, render seeds no dataset split uses), one per level of the factor; every method's checkpoints are
-scored on all of them. Where a method's error reaches twice its value at the factor's nominal level is
-marked ("doubles at"). Writes OUT/results.json, stability.md, stability.csv, seeds.csv and PNGs.
+(2) Factors: for each, a family of test sets rendered by the simulator (the 9 Table II indenters, the training
+sensor data.train_sensor, render seeds no dataset split uses), one per level of the factor; every method's
+checkpoints are scored on all of them. Where a method's error reaches twice its value at the factor's
+nominal level is marked ("doubles at"). Writes OUT/results.json, stability.md, stability.csv, seeds.csv and PNGs.
 """
 
 from __future__ import annotations
@@ -28,7 +28,6 @@ from experiments.sweep_loss import register_from
 from experiments.tables import save_png
 from ffjax import registry
 
-SENSOR = "mini-1-gel1"
 PER_LEVEL = {"smoke": 9, "quick": 180, "full": 360, "gpu": 360, "paper": 360}
 N_LEVELS = {"smoke": 2}  # other presets: every level of each factor
 STREAM = 1000  # sampling stream / render seed block no dataset split uses (held out)
@@ -137,23 +136,23 @@ def presses(cfg: dict, f: Factor, li: int, n: int, sensor) -> dict:
 
     level, fz_max = f.levels[li], float(cfg["data"]["fz_max"])
     if f.name == "flat_size":  # the cube's poses and loads, pressed with a flat face of another size
-        spec = dataset.SplitSpec("stability", SENSOR, ("cube",), n, STREAM)
+        spec = dataset.SplitSpec("stability", cfg["data"]["train_sensor"], ("cube",), n, STREAM)
         p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
         return {"shapes": (flat_punch(level),), **p}
     if f.name == "face_texture":  # the cube's poses and loads, its face's knurl changed
-        spec = dataset.SplitSpec("stability", SENSOR, ("cube",), n, STREAM)
+        spec = dataset.SplitSpec("stability", cfg["data"]["train_sensor"], ("cube",), n, STREAM)
         p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
         return {"shapes": (flat_punch(14.0, level),), **p}
     if f.name == "sphere_radius":  # the big sphere's poses and loads, pressed with a sphere of another radius
-        spec = dataset.SplitSpec("stability", SENSOR, (dataset.CALIB_SHAPE,), n, STREAM)
+        spec = dataset.SplitSpec("stability", cfg["data"]["train_sensor"], (dataset.CALIB_SHAPE,), n, STREAM)
         p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
         return {"shapes": (sphere(level),), **p}
     if f.name == "elongation":  # the small sphere's poses and loads, pressed with a bar of some length
-        spec = dataset.SplitSpec("stability", SENSOR, ("sphere_small",), n, STREAM)
+        spec = dataset.SplitSpec("stability", cfg["data"]["train_sensor"], ("sphere_small",), n, STREAM)
         p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
         return {"shapes": (bar(level, BAR_RADIUS_MM),), **p}
     shapes = tuple(s for s in sim.INDENTERS if s != dataset.CALIB_SHAPE)
-    spec = dataset.SplitSpec("stability", SENSOR, shapes, math.ceil(n / len(shapes)), STREAM)
+    spec = dataset.SplitSpec("stability", cfg["data"]["train_sensor"], shapes, math.ceil(n / len(shapes)), STREAM)
     p = {k: v[:n] for k, v in dataset.sample_presses(spec, cfg).items()}
     rng = np.random.default_rng([int(cfg["seed"]), STREAM, 7])
     if f.name == "edge":
@@ -185,7 +184,7 @@ def render(cfg: dict, f: Factor, li: int, n: int) -> dict:
     from ffjax import sim
     from ffjax.sim import dataset
 
-    nominal = sim.get_sensor(SENSOR)
+    nominal = sim.get_sensor(cfg["data"]["train_sensor"])
     size = dataset.render_size(nominal, cfg["data"]["render_size"])
     frame_sensor, bg_sensor = sensors_for(f.name, f.levels[li], nominal)
     p = presses(cfg, f, li, n, nominal)
@@ -353,7 +352,7 @@ def run(cfg, methods, chosen, per_level, ablation_dir, out, data_dir=None, force
     results = {"preset": cfg["preset"], "commit": common.git_commit(), "seeds": seeds, "timings": timings,
                "methods": methods, "ablation": str(ablation_dir),
         "checkpoints": {m: [str(d) for d in ds] for m, ds in ckpts.items()}, "per_level": per_level,
-        "sensor": SENSOR, "seed_spread": seed_spread(evals), "factors": fres,
+        "sensor": cfg["data"]["train_sensor"], "seed_spread": seed_spread(evals), "factors": fres,
         "metric": "normalized L1 % (mean over Fx, Fy, Fz of mean |error| / training label range)", "config": cfg}
     results["breaks_first"] = {fn: breaks_first(e) for fn, e in fres.items()}
     results["summary"] = summary(results)

@@ -76,7 +76,8 @@ def main(argv=None) -> dict:
                                              "(--ablation; measured on the earlier 372-step preset)"})
     ap.add_argument("--betas", type=float, nargs="+", default=list(DEFAULT_BETAS), help="depth-loss weights")
     ap.add_argument("--alpha", type=float, default=1.0, help="force-loss weight (the x axis is beta / alpha)")
-    ap.add_argument("--seeds", type=int, default=None, help="seeds per beta (default: 1, 3 at full)")
+    ap.add_argument("--seeds", type=int, default=None,
+                    help="seeds per beta (default: the preset's `seeds`: 1, 3 at full)")
     ap.add_argument("--base", default="dino_rd", help="registry method the variants are made from")
     ap.add_argument("--ablation", default=None,
                     help="ablation results folder whose finished runs are reused (default: results/ablation-<preset>)")
@@ -84,9 +85,7 @@ def main(argv=None) -> dict:
     if any(b < 0 for b in args.betas) or args.alpha <= 0:
         ap.error("betas must be >= 0 and alpha > 0")
     cfg = common.config_from_args(ap, args)
-    seeds_n = args.seeds or kernel.DEFAULT_SEEDS[args.preset]
-    if seeds_n < 1:
-        ap.error("--seeds must be at least 1")
+    seeds_n = common.n_seeds(ap, args, cfg)
     base = registry.get(args.base)
     if not base.depth_head:
         ap.error(f"--base {args.base} has no depth head; choose one with a decoder (e.g. dino_rd)")

@@ -121,7 +121,7 @@ def test_tilt_shear_factor_turns_only_the_lean():
 
     cfg = configs.get("smoke")
     f = next(x for x in stability.factors(cfg) if x.name == "tilt_shear")
-    sensor = sim.get_sensor(stability.SENSOR)
+    sensor = sim.get_sensor(cfg["data"]["train_sensor"])
     base, turned = (stability.presses(cfg, f, f.levels.index(a), 12, sensor) for a in (0.0, 180.0))
     np.testing.assert_array_equal(base["force"], turned["force"])  # same forces and poses, only the lean moves
     np.testing.assert_array_equal(base["x_mm"], turned["x_mm"])

@@ -8,7 +8,7 @@ from experiments import object_probe
 
 
 def test_signal_orders_a_wide_flat_face_below_a_small_sphere():
-    sig = object_probe.signal(("sphere_small", "wrench"), size=(24, 32), input_size=32)
+    sig = object_probe.signal(("sphere_small", "wrench"), "mini-1-gel1", size=(24, 32), input_size=32)
     assert sig["sphere_small"]["kind"] == "indenter" and sig["wrench"]["kind"] == "object"
     assert sig["wrench"]["pad_share"] > 2 * sig["sphere_small"]["pad_share"]  # the wrench face covers the view
     assert sig["wrench"]["energy_fz_per_n"] < sig["sphere_small"]["energy_fz_per_n"]
