@@ -12,14 +12,6 @@ PACKAGES = ("ffjax", "configs", "experiments")
 MAX_LINES = 80
 # Files whose functions must stay under MAX_LINES (issue 15; ffjax/train's are checked in tests/test_train.py).
 SHORT_FUNCTIONS = ("experiments/kernel.py",)
-# Circles allowed until a change removes them (delete the entry then):
-KNOWN_CYCLES = {
-    # found by this test, no change assigned yet (all four imports are inside functions): cli imports checkpoint's
-    # error classes, checkpoint.load_checkpoint imports ffjax.data, data.write_csv imports csv_layout, whose main
-    # imports cli
-    frozenset({"ffjax.cli", "ffjax.train.checkpoint", "ffjax.data", "ffjax.data.csv_layout"}):
-        "cli -> train.checkpoint -> data -> data.csv_layout -> cli",
-}
 
 
 def _modules() -> dict[str, Path]:
@@ -123,14 +115,8 @@ def test_the_library_never_imports_the_experiments(graph):
 
 
 def test_no_import_cycles(graph):
-    found = [c for c in _cycles(graph) if frozenset(c) not in KNOWN_CYCLES]
+    found = _cycles(graph)
     assert not found, "import circles:\n" + "\n".join(_path(graph, c) for c in found)
-
-
-@pytest.mark.parametrize("cycle", list(KNOWN_CYCLES), ids=lambda c: "-".join(sorted(m.rsplit(".", 1)[1] for m in c)))
-@pytest.mark.xfail(reason="a known circle, allowed until a change removes it (see KNOWN_CYCLES)", strict=False)
-def test_known_cycle_is_gone(graph, cycle):
-    assert sorted(cycle) not in _cycles(graph), _path(graph, sorted(cycle))
 
 
 def _long_functions(path: Path) -> list[str]:
