@@ -537,6 +537,8 @@ def method_of(info: dict):
     spec = info.get("spec")
     if not (isinstance(spec, dict) and set(spec) != {"name"}):
         return registry.get(info["method"])
+    if spec.get("name") != info["method"]:  # edited by hand or written by something else: which one is it?
+        raise ValueError(f"its method {info['method']!r} is not its spec's {spec.get('name')!r}")
     unknown = sorted(set(spec) - {f.name for f in dataclasses.fields(registry.Method)})
     if unknown:
         raise ValueError(f"method {spec.get('name')!r} has fields this ffjax does not know: {unknown}")
