@@ -24,7 +24,6 @@ import numpy as np
 
 from experiments import common, kernel
 from experiments import paper_numbers as P
-from experiments.sweep_loss import register_from
 from experiments.tables import save_png
 from ffjax import registry
 
@@ -296,11 +295,10 @@ def main(argv=None) -> dict:
     cfg = common.config_from_args(ap, args)
     abl = common.ablation_folder(ap, args.ablation, args.preset).absolute()
     saved = common.read_json(abl / "results.json") or {}
-    if "per_beta" in saved:  # a loss-weight sweep's folder: its variants must be registered to load them
-        register_from(saved)
     methods = args.methods or saved.get("methods") or list(registry.PAPER_SET)
     for m in methods:
-        registry.get(m)
+        if not saved.get("checkpoints", {}).get(m):  # one with runs (a sweep's variant too) loads from model.json
+            registry.get(m)
     chosen = [pick_levels(f, args.levels or N_LEVELS.get(args.preset)) for f in factors(cfg)]
     if args.factors:
         unknown = set(args.factors) - {f.name for f in chosen}
@@ -427,8 +425,11 @@ MECHANISM = {
 }
 
 
-def _traits(m: str) -> str:
-    s = registry.get(m)
+def _traits(m: str, results: dict) -> str:
+    from ffjax.train import read_model
+
+    runs = results.get("checkpoints", {}).get(m)
+    s = registry.get(m) if m in registry.names() or not runs else read_model(runs[0]).spec  # a sweep's variant
     parts = [f"{'ResNet' if s.backbone == 'resnet' else 'ViT'} backbone",
              "frozen" if s.frozen_backbone else ("fine-tuned" if s.pretrained else "trained from scratch"),
              "with the depth head" if s.depth_head else "without a depth head"]
@@ -447,7 +448,7 @@ def summary(results: dict) -> str:
         first = results["breaks_first"].get(fn)
         line = f"- **{fn}** ({e['label']}; nominal {ref:g}): " + "; ".join(parts) + "."
         if first and len(e["methods"]) > 1:
-            line += f" Breaks first: **{_name(first)}** ({_traits(first)})."
+            line += f" Breaks first: **{_name(first)}** ({_traits(first, results)})."
             best = lowest_at(e, len(e["levels"]) - 1)
             if best:
                 line += (f" Lowest error at the strongest level: {_name(best)} (\"breaks first\" is relative to each "
