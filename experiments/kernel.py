@@ -23,13 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+import configs
 from experiments import common, paper_numbers
 
-# Keys the config gained in issue 15, at the values the code used before they were keys. The training key
-# leaves them out while they hold these values, so runs trained before the keys existed stay valid (reused).
-BEFORE_KEYS = {("data", "train_sensor"): "mini-1-gel1", ("data", "fz_min"): 0.05, ("data", "tilt_max_deg"): 7.0,
-               ("data", "shear_noise"): 0.06, ("model", "vit", "interpolate_offset"): 0.1,
-               ("model", "decoder", "fast"): True}
 # Table III: (target sensor, which layers calibrate): GelSight units tune the last Linear + LayerNorm,
 # DIGIT (another kind of sensor) the whole regressor, as the paper does.
 CALIBRATIONS = (("mini-2-gel1", "last"), ("mini-3-gel2", "last"), ("digit", "regressor"))
@@ -62,13 +58,8 @@ def seeds(cfg: dict, n: int) -> list[int]:
 def train_key(cfg: dict, spec, seed: int, data_root: Path) -> str:
     """The training stage's key: what decides the trained weights (not paths, not progress bars)."""
     manifest = common.read_json(Path(data_root) / "manifest.json") or {}
-    keyed = copy.deepcopy({k: cfg[k] for k in ("data", "model", "train", "pretrain")})
-    for *parents, leaf in BEFORE_KEYS:
-        node = keyed
-        for p in parents:
-            node = node.get(p) if isinstance(node, dict) else None
-        if isinstance(node, dict) and leaf in node and node[leaf] == BEFORE_KEYS[(*parents, leaf)]:
-            del node[leaf]
+    # keys the config gained in issue 15 are left out at their old values: runs trained before stay valid
+    keyed = configs.without_before_keys({k: cfg[k] for k in ("data", "model", "train", "pretrain")})
     return common.fingerprint("train", keyed, spec.__dict__, seed, manifest.get("config"))
 
 

@@ -55,10 +55,14 @@ DEFAULTS = {
 
 
 def settings(cfg: dict, kind: str) -> dict:
-    """Everything that determines a pretrained backbone (also the cache key)."""
+    """Everything that determines a pretrained backbone (also the cache key). Config keys that hold the value
+    the code used before they were keys are left out, so backbones pretrained before then stay valid."""
+    import configs
+
     p = {k: cfg["pretrain"].get(k, v) for k, v in DEFAULTS.items()}
     p = {k: list(v) if isinstance(v, tuple) else v for k, v in p.items()}
-    return {"version": VERSION, "kind": kind, "model": _jsonable(cfg["model"][kind]),
+    model = configs.without_before_keys({"model": cfg["model"]})["model"]
+    return {"version": VERSION, "kind": kind, "model": _jsonable(model[kind]),
             "input_size": int(cfg["data"]["input_size"]), "seed": int(cfg["seed"]), "pretrain": p,
             "corpus": corpus_lib.corpus_settings(cfg)}
 
