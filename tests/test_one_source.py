@@ -2,6 +2,7 @@
 a module, an entry in models.BACKBONES and a config section; the config keys added for knobs the code read
 as constants leave numbers and existing data folders as they were."""
 
+import copy
 import dataclasses
 import json
 import sys
@@ -135,3 +136,16 @@ def test_code_defaults_are_the_base_defaults():
     dec = {**m["decoder"], "kind": "paper"}
     assert models.decoder_from_config({k: v for k, v in dec.items() if k != "fast"}, 32) == \
         models.decoder_from_config(dec, 32)
+
+
+def test_caches_ignore_new_keys_at_their_old_values():
+    """A pretrained backbone cached before model.vit.interpolate_offset was a key keeps matching; another value
+    is another backbone."""
+    from ffjax.train import pretrain
+
+    cfg = configs.get("smoke")
+    before = copy.deepcopy(cfg)
+    del before["model"]["vit"]["interpolate_offset"]
+    assert pretrain.settings(cfg, "vit") == pretrain.settings(before, "vit")
+    assert pretrain.settings(configs.get("smoke", {"model.vit.interpolate_offset": 0.0}), "vit") != \
+        pretrain.settings(cfg, "vit")
