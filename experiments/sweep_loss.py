@@ -53,13 +53,6 @@ def variant(base: registry.Method, beta: float, alpha: float = 1.0) -> registry.
     return spec if spec.name in known else registry.register(spec)
 
 
-def register_from(results: dict) -> list[str]:
-    """Register the variants a sweep's results.json names (checkpoints of a variant load only once its
-    registry entry exists in this process); returns their names."""
-    base = registry.get(results["base"])
-    return [variant(base, v["beta"], v["alpha"]).name for v in results["per_beta"].values()]
-
-
 def scores(ev: dict) -> dict:
     """The sweep's numbers from one run's ablation evaluation (eval.json "result")."""
     t1, t2 = ev["table1"], ev["table2"]
