@@ -33,12 +33,13 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ffjax.models.model import BACKBONES
 from ffjax.train import corpus as corpus_lib
 
 VERSION = 1
 BACKBONE_FILE = "backbone.msgpack"
 META_FILE = "pretrain.json"
-KINDS = ("vit", "resnet")
+KINDS = tuple(BACKBONES)  # every backbone kind pretrains with DINO
 # XLA options for compiling the update (tests set {"xla_backend_optimization_level": 0}: half the compile)
 COMPILER_OPTIONS: dict = {}
 
