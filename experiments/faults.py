@@ -30,7 +30,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from experiments import common, faults_cases
+from experiments import common, faults_cases, kernel
 
 TRAIN_METHOD = "dino_rd_scratch"  # no pretraining stage: the kill points land in training itself
 # A few more, smaller shards than the smoke preset so dataset kills land between shards.
@@ -326,8 +326,8 @@ def ablation_part(preset, kills, out, data, env, rng, progress) -> dict:
                 finished.setdefault(str(st), info["finished"])
         return {"stages_done": len(finished), **_latest_ok(run_dir)}
 
-    run_dir = folder / "runs" / TRAIN_METHOD / "seed0"
-    total = json.loads((ref / "runs" / TRAIN_METHOD / "seed0" / "summary.json").read_text())["total_steps"] + 1
+    run_dir = kernel.run_dir(folder, TRAIN_METHOD, 0)
+    total = json.loads((kernel.run_dir(ref, TRAIN_METHOD, 0) / "summary.json").read_text())["total_steps"] + 1
 
     def done():  # training steps, then one more unit for the evaluation stage
         step, wrote = _progress(run_dir)
