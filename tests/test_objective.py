@@ -8,6 +8,7 @@ import csv
 import dataclasses
 import json
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -82,13 +83,21 @@ def _batch(cfg):
             "force": rng.uniform(0, 5, size=(n, 3)).astype(np.float32)}
 
 
-def test_a_sweep_variant_loads_in_a_fresh_process(tiny_data, tmp_path):
+@pytest.fixture(scope="module")
+def variant_run(tiny_data, tmp_path_factory):
+    """A sweep variant of dino_rd, trained without ever being registered: (its Method, its run folder)."""
     base = registry.get("dino_rd")
     variant = dataclasses.replace(base, name="dino_rd_b3_a2", paper_name="DINO RD (beta 3, alpha 2)", beta=3.0,
                                   alpha=2.0, pretrained=False)
     assert variant.name not in registry.names()  # never registered
-    cfg = configs.get("smoke", {"train.epochs": 1, "train.batch_size": 8})
-    train.train(cfg, variant, tiny_data, tmp_path, progress=False)
+    out = tmp_path_factory.mktemp("variant")
+    train.train(configs.get("smoke", {"train.epochs": 1, "train.batch_size": 8}), variant, tiny_data, out,
+                progress=False)
+    return variant, out
+
+
+def test_a_sweep_variant_loads_in_a_fresh_process(variant_run):
+    variant, tmp_path = variant_run
     _, spec, _, variables = train.load_checkpoint(tmp_path)
     assert spec == variant
 
@@ -111,12 +120,13 @@ def test_a_sweep_variant_loads_in_a_fresh_process(tiny_data, tmp_path):
     assert got["sum"] == pytest.approx(float(sum(np.abs(x).sum() for x in jax.tree.leaves(variables))), rel=1e-6)
 
 
-def test_an_old_model_json_without_the_spec_falls_back_to_the_registry(tiny_data, tmp_path):
-    cfg = configs.get("smoke", {"train.epochs": 1, "train.batch_size": 8})
-    train.train(cfg, "dino_r", tiny_data, tmp_path, progress=False)
-    path = tmp_path / "model.json"
+def test_an_old_model_json_without_the_spec_falls_back_to_the_registry(variant_run, tmp_path):
+    # the variant's weights are dino_rd's architecture: a model.json from before the spec named only "dino_rd"
+    shutil.copytree(variant_run[1], tmp_path / "run")
+    path = tmp_path / "run" / "model.json"
     info = json.loads(path.read_text())
     del info["spec"]
+    info["method"] = "dino_rd"
     path.write_text(json.dumps(info))
-    assert train.read_model(tmp_path).spec == registry.get("dino_r")
-    assert train.load_checkpoint(tmp_path)[1] == registry.get("dino_r")
+    assert train.read_model(tmp_path / "run").spec == registry.get("dino_rd")
+    assert train.load_checkpoint(tmp_path / "run")[1] == registry.get("dino_rd")

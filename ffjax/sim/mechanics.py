@@ -32,6 +32,10 @@ SOLVE_MARGIN_T = 2.0  # layer beyond the pad in the solve, x thickness: its resp
 _EPS = np.linspace(0.0, 0.98, 4096)  # compressive strain table for psi and its inverse
 _PSI = ((1.0 - _EPS) ** -2 - (1.0 - _EPS)) / 3.0
 _OUTER_TOL = 1e-4  # fixed point on the approach: stop when it moves less than this x thickness
+# Below a nanonewton a press is no contact: far under any sensor's resolution, and a subnormal force
+# (5e-324 N, found by the property tests) spread over the body underflows the pressure to 0, leaving no
+# contact cell for the solve to balance.
+FZ_NONE = 1e-9
 
 
 def stiffen(u, thickness: float):
@@ -81,12 +85,13 @@ class Normal:
     pressure: np.ndarray  # (H, W) MPa
 
 
+
 def solve_normal(h: np.ndarray, mm_per_px: float, shear_mpa: float, thickness: float, fz: float) -> Normal:
     """The layer's response to a rigid frictionless body of heights h (mm over the pad grid; >= FAR/2 = no
     body) pressed until it carries Fz (N). ValueError if the gel would be compressed past MAX_STRAIN."""
     H, W = h.shape
     body_pad = h < elastic_layer.FAR / 2
-    if fz <= 0 or not body_pad.any():
+    if fz <= FZ_NONE or not body_pad.any():
         zero = np.zeros((H, W))
         return Normal(0.0, zero, zero.astype(bool), zero)
     m, layer = _padded_layer((H, W), mm_per_px, thickness, shear_mpa)

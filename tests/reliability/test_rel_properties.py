@@ -51,6 +51,15 @@ def test_press_outputs_are_well_formed(shape, sensor, force, px, py, yaw, tilt, 
         assert s.depth.max() > 0  # pressing moves the gel in somewhere
 
 
+@pytest.mark.parametrize("fz", [5e-324, 1e-300, 1e-10])
+def test_a_vanishing_normal_force_is_no_contact(fz):
+    """Found by the property test above: a subnormal Fz (5e-324 N) spread over a cone underflowed the pressure
+    to 0 and the depth came out NaN. Below a nanonewton a press is no contact."""
+    x, y = _pose("mini-1", 0.0662, 7e-110)
+    s = sim.press("cone", "mini-1", (-0.0607, 0.006, fz), x, y, 165.98, (0.0, 0.0), 0, SIZE)
+    assert np.isfinite(s.depth).all() and np.abs(s.depth).max() == 0
+
+
 @FAST
 @given(shape=st.sampled_from(sorted(sim.INDENTERS)), sensor=st.sampled_from(SENSORS),
        shear=st.tuples(st.floats(-5, 5), st.floats(-5, 5)))
