@@ -84,7 +84,9 @@ def test_deterministic_resumable_and_guarded(root, cfg, tmp_path):
     changed = configs.get("smoke", {"seed": 1})
     with pytest.raises(FileExistsError, match="differs in: seed"):
         dataset.generate(changed, other, progress=False)
-    assert dataset.generate(changed, other, force=True, workers=1, progress=False)["seed"] == 1
+    small = {"seed": 1, "data.train_per_indenter": 1, "data.val_per_indenter": 1, "data.unseen_per_object": 1,
+             "data.sensor_test_per_indenter": 1, "data.calib_samples": 1}  # --force only: a small set will do
+    assert dataset.generate(configs.get("smoke", small), other, force=True, workers=1, progress=False)["seed"] == 1
 
 
 def test_csv_converter_round_trip(root, tmp_path):

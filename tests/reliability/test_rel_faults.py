@@ -115,7 +115,8 @@ def test_torn_log_line_is_dropped_on_resume(data, reference, tmp_path):
 def test_sigkill_dataset_generation_keeps_finished_shards(tmp_path):
     from ffjax.sim import dataset
 
-    sets = ["data.shard_size=16", "data.sensor_test_per_indenter=1", "data.calib_samples=4"]
+    sets = ["data.shard_size=16", "data.train_per_indenter=6", "data.unseen_per_object=2",
+            "data.sensor_test_per_indenter=1", "data.calib_samples=4"]
     cfg = configs.get("smoke", dict(configs.parse_override(s) for s in sets))
     ref = tmp_path / "ref"
     dataset.generate(cfg, ref, progress=False)
