@@ -12,18 +12,11 @@ import os
 import sys
 import threading
 
+from ffjax.errors import USAGE_ERRORS, WriteError
+from ffjax.files import check_writable
+
 USAGE, RUNTIME = 2, 1
 _REPORTED = threading.Event()  # set once main() has failed: later orbax records only echo that failure
-
-
-def _usage_errors() -> tuple[type, ...]:
-    from ffjax.convert.reader import UnsafePickleError
-    from ffjax.data.validate import DataError
-    from ffjax.train.checkpoint import CheckpointError
-
-    # CheckpointWriteError (a full or read-only disk) subclasses OSError: runtime, not usage
-    return (FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError, DataError, CheckpointError,
-            UnsafePickleError, ValueError, KeyError)
 
 
 def _from_orbax(text: str) -> bool:
@@ -33,7 +26,7 @@ def _from_orbax(text: str) -> bool:
 class _OneLineBackgroundErrors(logging.Filter):
     """orbax logs a failed background write from each of its threads with a full traceback, and asyncio adds
     one for every pending write task: one full disk printed 900-2,000 lines above the one error that matters
-    (the CheckpointWriteError that run() prints). Keep orbax's lines to one line each; drop asyncio's repeats."""
+    (the WriteError that run() prints). Keep orbax's lines to one line each; drop asyncio's repeats."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         if _REPORTED.is_set():  # main() has failed: orbax threads still failing only echo it
@@ -71,11 +64,9 @@ def _quiet_background_faults() -> None:
 def check_out(parser, folder, flag: str = "--out"):
     """`folder` (absolute) once it is created and writable; otherwise a usage error naming `flag` (exit 2), before
     any work: an output under a file or on a read-only disk fails in a second, not after the run."""
-    from ffjax.train.checkpoint import CheckpointWriteError, check_writable
-
     try:
         return check_writable(folder)
-    except CheckpointWriteError as e:
+    except WriteError as e:
         parser.error(f"{flag}: {e}")
 
 
@@ -103,7 +94,7 @@ def run(main, argv=None) -> int:
         if os.environ.get("FFJAX_DEBUG"):
             raise
         _REPORTED.set()  # from here on, background records only echo this failure: the error line stays last
-        code = USAGE if isinstance(e, _usage_errors()) else RUNTIME if isinstance(e, (OSError, RuntimeError)) \
+        code = USAGE if isinstance(e, USAGE_ERRORS) else RUNTIME if isinstance(e, (OSError, RuntimeError)) \
             else None
         if code is None:
             raise

@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ffjax import inference
+from ffjax.files import atomic_write_bytes, atomic_write_text
 
 FORMAT = "ffjax.export/1"
 
@@ -94,8 +95,6 @@ def sidecar_path(path) -> Path:
 
 def save(pred: inference.Predictor, path, batch: int = 1, platforms=None) -> Path:
     """Write the serialized function to `path` and its description to `path`.json; returns `path`."""
-    from ffjax.train.checkpoint import atomic_write_bytes, atomic_write_text
-
     exp = export(pred, batch, platforms)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 
 from ffjax import inference, live_filters
-from ffjax.runlock import folder_lock
+from ffjax.files import folder_lock
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ffjax.files import atomic_write_text
+
 
 def write_json(path, obj) -> None:
     """Write JSON atomically (tmp + fsync + rename): a kill never leaves a half-written results file."""
@@ -21,8 +23,6 @@ def write_json(path, obj) -> None:
 def write_text(path, text: str) -> None:
     """Write text atomically (its folder made if missing): the old file or the new one survives a kill or a
     full disk, never a part."""
-    from ffjax.train.checkpoint import atomic_write_text  # imported here: orbax is slow to load
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, text)

@@ -72,7 +72,8 @@ def test_record_writes_release_layout(recorded, tmp_path):
 
 def test_a_second_recording_into_a_busy_folder_is_refused(recorded, tmp_path):
     """It used to go on and, at its first press, rewrite data.csv without the first session's rows."""
-    from ffjax.runlock import FolderLockedError, folder_lock
+    from ffjax.errors import FolderLockedError
+    from ffjax.files import folder_lock
 
     path, _ = recorded
     before = _digest(path.parent)
@@ -119,7 +120,7 @@ def test_calibrate_cli_improves_and_writes_a_loadable_checkpoint(run_dir, record
     assert tool.main(["--checkpoint", str(run_dir), "--data", str(path), "--out", str(run_dir / "x")]) == 2
     assert "must be a new folder" in capsys.readouterr().err
     # a second calibration into a folder another one is writing stops, naming the holder
-    from ffjax.runlock import folder_lock
+    from ffjax.files import folder_lock
 
     with folder_lock(tmp_path / "c3", "calibration"):
         assert cli.run(tool.main, ["--checkpoint", str(run_dir), "--data", str(path), "--out", str(tmp_path / "c3"),

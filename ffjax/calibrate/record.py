@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import argparse
 import csv
-import os
+import io
 import re
 import sys
 from collections.abc import Callable, Iterator
@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ffjax.data.sources import BACKGROUND_NAME, CSV_NAME, write_rgb
-from ffjax.runlock import folder_lock
+from ffjax.files import atomic_write_text, folder_lock
 
 G = 9.81
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
@@ -98,13 +98,12 @@ class Recorder:
 
     def flush(self) -> Path:
         path = self.out / CSV_NAME
-        tmp = self.out / f"{CSV_NAME}.tmp{os.getpid()}"
         per_row = any(r[2] != BACKGROUND_NAME for r in self.rows)
-        with open(tmp, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(["tactile", "FT"] + (["background"] if per_row else []))
-            w.writerows(r if per_row else r[:2] for r in self.rows)
-        os.replace(tmp, path)
+        text = io.StringIO()
+        w = csv.writer(text)
+        w.writerow(["tactile", "FT"] + (["background"] if per_row else []))
+        w.writerows(r if per_row else r[:2] for r in self.rows)
+        atomic_write_text(path, text.getvalue())
         return path
 
 

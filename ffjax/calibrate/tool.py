@@ -35,7 +35,7 @@ from ffjax import cli, inference, metrics
 from ffjax import data as fdata
 from ffjax.calibrate import core
 from ffjax.data.sources import write_rgb
-from ffjax.runlock import LOCK_NAME, folder_lock
+from ffjax.files import LOCK_NAME, folder_lock
 
 
 def split_indices(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -18,6 +18,8 @@ from pathlib import Path
 import ml_dtypes
 import numpy as np
 
+from ffjax.errors import UnsafePickleError
+
 _STORAGE_DTYPES = {
     "DoubleStorage": np.float64,
     "FloatStorage": np.float32,
@@ -48,10 +50,6 @@ _TORCH_DTYPES = {
     "uint8": np.uint8,
     "bool": np.bool_,
 }
-
-
-class UnsafePickleError(pickle.UnpicklingError):
-    """A checkpoint's pickle references a global outside the allow-list."""
 
 
 class _ViewError(ValueError):

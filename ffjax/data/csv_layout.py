@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 import csv
-import os
+import io
 import sys
 from pathlib import Path
 
@@ -19,6 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ffjax.data.sources import BACKGROUND_NAME, CSV_NAME, open_split, write_rgb
+from ffjax.files import atomic_write_text
 
 
 def write_csv(source, out, progress: bool = True) -> Path:
@@ -45,12 +46,11 @@ def write_csv(source, out, progress: bool = True) -> Path:
             rows.append((img_rel, depth_rel, ft))
         bar.update(len(b["force"]))
     bar.close()
-    tmp = out / f"{CSV_NAME}.tmp{os.getpid()}"
-    with open(tmp, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["tactile", "depth", "FT"])
-        w.writerows(rows)
-    os.replace(tmp, out / CSV_NAME)
+    text = io.StringIO()
+    w = csv.writer(text)
+    w.writerow(["tactile", "depth", "FT"])
+    w.writerows(rows)
+    atomic_write_text(out / CSV_NAME, text.getvalue())
     return out / CSV_NAME
 
 

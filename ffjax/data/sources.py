@@ -27,6 +27,7 @@ from ffjax.data.validate import (
     report_bad_rows,
     same_file_key,
 )
+from ffjax.files import atomic_write_bytes
 
 SHARD_GLOB = "shard_*.npz"
 SHOW_SHARDS = 5
@@ -60,9 +61,7 @@ def write_rgb(path: str | os.PathLike, image: np.ndarray) -> None:
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(image[..., ::-1]))
     if not ok:
         raise OSError(f"could not encode {path}")
-    tmp = f"{path}.tmp{os.getpid()}"
-    buf.tofile(tmp)
-    os.replace(tmp, path)
+    atomic_write_bytes(path, buf.tobytes())
 
 
 def open_split(path: str | os.PathLike, background: str | os.PathLike | np.ndarray | None = None, *,

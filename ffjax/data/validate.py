@@ -16,16 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ffjax.errors import DataError
+
 log = logging.getLogger("ffjax.data")
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 PNG_TRAILER = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # the IEND chunk: length 0, type, CRC
 FT_NAMES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 SHOW = 5  # reasons quoted in a bad-rows error or skip warning
-
-
-class DataError(ValueError):
-    """A split on disk is malformed; the message names the file (and row) at fault."""
 
 
 def parse_ft_cell(cell: str) -> tuple[np.ndarray | None, str | None]:

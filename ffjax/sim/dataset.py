@@ -25,9 +25,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
-import contextlib
 import dataclasses
-import errno
 import functools
 import io
 import json
@@ -45,6 +43,7 @@ import numpy as np
 from tqdm import tqdm
 
 import configs
+from ffjax.files import atomic_write, atomic_write_text, check_writable
 from ffjax.sim.sensors import MINI_NAMES, SENSOR_NAMES, get_sensor
 
 VERSION = 1
@@ -242,27 +241,14 @@ def save_npz(path, arrays: dict, compress: bool = COMPRESS) -> None:
                 info.compress_type = method
                 zf.writestr(info, buf.getvalue())
 
-    _atomic_write(path, write, "wb")
+    atomic_write(path, write, _RESUME_HINT)
 
 
 def _write_text(path: Path, text: str) -> None:
-    _atomic_write(path, lambda f: f.write(text), "w")
+    atomic_write_text(path, text, _RESUME_HINT)
 
 
-def _atomic_write(path: Path, write, mode: str) -> None:
-    """write(f) into a temp file, fsync, rename over `path`: a kill or a full disk never leaves a part."""
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        with open(tmp, mode) as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except OSError as e:
-        tmp.unlink(missing_ok=True)
-        why = "the disk is full" if e.errno == errno.ENOSPC else (e.strerror or str(e))
-        raise OSError(e.errno, f"could not write {path}: {why}; finished shards are kept, rerun the same "
-                               f"command to continue") from e
+_RESUME_HINT = "finished shards are kept, rerun the same command to continue"
 
 
 def _shard_ok(path: Path) -> bool:
@@ -272,19 +258,6 @@ def _shard_ok(path: Path) -> bool:
             return "force.npy" in zf.namelist()
     except (OSError, zipfile.BadZipFile):
         return False
-
-
-def check_writable(out: Path) -> None:
-    """Fail before any rendering when `out` cannot be created or written."""
-    probe = out / f".write_probe{os.getpid()}"
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe.write_bytes(b"0")
-    except OSError as e:
-        raise OSError(e.errno, f"dataset folder {out} is not writable: {e.strerror or e}") from e
-    finally:
-        with contextlib.suppress(OSError):  # e.g. the parent is a file: nothing was created
-            probe.unlink()
 
 
 def _shard_task(args) -> int:
@@ -331,7 +304,7 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
 
     out = Path(out)
     g = gen_config(cfg)
-    check_writable(out)
+    check_writable(out, what="dataset folder")  # before any rendering
     _prepare(out, g, force)
     specs = split_specs(cfg)
     size, shard = tuple(g["data"]["render_size"]), int(g["data"]["shard_size"])

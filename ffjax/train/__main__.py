@@ -65,7 +65,7 @@ def describe(val: dict | None) -> str:
 def main(argv=None) -> int:
     args = parse_args(argv)
     from ffjax import cli, registry, train
-    from ffjax.train.checkpoint import CheckpointError, CheckpointWriteError
+    from ffjax.errors import CheckpointError, WriteError
 
     spec = registry.get(args.method)
     out = Path(args.out or Path("runs") / f"{args.preset}-{args.method}")
@@ -95,7 +95,7 @@ def main(argv=None) -> int:
             max_steps=args.max_steps,
             progress=not args.quiet,
         )
-    except (train.NonFiniteLossError, CheckpointWriteError) as e:
+    except (train.NonFiniteLossError, WriteError) as e:
         return cli.fail(e, cli.RUNTIME)
     except (FileExistsError, CheckpointError) as e:
         return cli.fail(e, cli.USAGE)

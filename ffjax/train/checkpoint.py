@@ -12,7 +12,7 @@ Orbax saves asynchronously: every read waits for pending saves first.
 Kill safety: orbax writes each step into a temporary folder and renames it when complete, so a kill
 mid-save leaves the previous step as the newest one; our JSON files go through `atomic_write_text`
 (temp file, fsync, os.replace). A failed save (disk full, folder gone read-only) raises
-`CheckpointWriteError`; the older checkpoints are untouched because a new one is written beside them.
+`WriteError`; the older checkpoints are untouched because a new one is written beside them.
 A missing, partial or foreign checkpoint is refused with `CheckpointError` naming the path.
 """
 
@@ -22,7 +22,6 @@ import contextlib
 import dataclasses
 import errno
 import json
-import os
 import shutil
 from pathlib import Path
 
@@ -31,6 +30,8 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
+from ffjax.errors import CheckpointError, WriteError
+from ffjax.files import atomic_write_bytes, atomic_write_text
 from ffjax.jsontree import retuple
 from ffjax.train import packed
 
@@ -41,80 +42,8 @@ PACKED, STATE = "packed", "state"
 _MODEL_KEYS = ("method", "input_size", "stats", "cfg")
 
 
-class CheckpointError(ValueError):
-    """A checkpoint that cannot be used: missing, partial, or written for another model / not by ffjax."""
-
-
-class CheckpointWriteError(OSError):
-    """A checkpoint or run file could not be written (disk full, no permission); older ones are intact."""
-
-    def __str__(self) -> str:  # the message alone, without OSError's "[Errno 28]" prefix
-        return self.strerror or super().__str__()
-
-
-def atomic_write_text(path, text: str) -> None:
-    """Write `path` so that a kill or a full disk leaves either the old file or the new one, never a part."""
-    atomic_write_bytes(path, text.encode())
-
-
-def atomic_write_bytes(path, data: bytes) -> None:
-    """atomic_write_text for bytes."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())  # the bytes are on disk before the rename makes them visible
-        os.replace(tmp, path)
-    except OSError as e:
-        tmp.unlink(missing_ok=True)
-        raise CheckpointWriteError(e.errno, f"could not write {path}: {e.strerror or e}") from e
-    _fsync_dir(path.parent)
-
-
-def _fsync_dir(folder: Path) -> None:
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)  # makes the rename itself durable
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def check_writable(folder, need_bytes: int = 0) -> Path:
-    """Fail fast, before any work, when `folder` cannot be created or written or has too little space."""
-    folder = Path(folder).absolute()
-    if folder.exists() and not folder.is_dir():  # mkdir would say only "File exists"
-        raise CheckpointWriteError(errno.ENOTDIR, f"output folder {folder} is a file, not a folder")
-    probe = folder / f".write_probe{os.getpid()}"
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with open(probe, "wb") as f:
-            f.write(b"0" * 4096)
-            f.flush()
-            os.fsync(f.fileno())
-    except OSError as e:
-        raise CheckpointWriteError(e.errno, f"output folder {folder} is not writable: {e.strerror or e}") from e
-    finally:
-        with contextlib.suppress(OSError):  # e.g. the parent is a file: nothing was created
-            probe.unlink()
-    free = shutil.disk_usage(folder).free
-    if free < need_bytes:
-        raise CheckpointWriteError(
-            errno.ENOSPC,
-            f"output folder {folder} has {free / 2**20:.1f} MiB free; a checkpoint needs about "
-            f"{need_bytes / 2**20:.1f} MiB. Free some space or choose another --out",
-        )
-    return folder
-
-
-def _save_error(e: BaseException, what: str, good) -> CheckpointWriteError:
-    """A save failure as a CheckpointWriteError that says which checkpoint is still good."""
+def _save_error(e: BaseException, what: str, good) -> WriteError:
+    """A save failure as a WriteError that says which checkpoint is still good."""
     inner, chain = e, []
     for _ in range(20):  # follow the exception chain (orbax wraps) to the OSError, if any
         if inner is None or isinstance(inner, OSError):
@@ -128,7 +57,7 @@ def _save_error(e: BaseException, what: str, good) -> CheckpointWriteError:
     first = (str(e).strip().splitlines() or [type(e).__name__])[0][:300]
     why = "the disk is full" if code == errno.ENOSPC else f"{type(e).__name__}: {first}"
     keep = f"the last good checkpoint (step {good}) is untouched" if good is not None else "no checkpoint yet"
-    return CheckpointWriteError(code or errno.EIO, f"could not save {what}: {why}; {keep}. Free space / fix "
+    return WriteError(code or errno.EIO, f"could not save {what}: {why}; {keep}. Free space / fix "
                                 f"permissions, then resume (--resume)")
 
 
@@ -282,13 +211,13 @@ class Checkpointer:
         tree_checksums(_best_variables(state))
 
     def _saving(self, what: str):
-        """Context that turns any write failure (raised now or by the async writer) into CheckpointWriteError."""
+        """Context that turns any write failure (raised now or by the async writer) into WriteError."""
 
         @contextlib.contextmanager
         def ctx():
             try:
                 yield
-            except CheckpointWriteError:
+            except WriteError:
                 raise
             except Exception as e:  # orbax may wrap the OSError; _save_error digs it out
                 raise _save_error(e, what, self._good_step()) from e

@@ -21,6 +21,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ffjax.files import atomic_write, atomic_write_text
+
 VERSION = 1
 PROCEDURAL_KINDS = ("pink_noise", "shapes", "gratings", "blobs", "shaded_relief")
 
@@ -53,13 +55,8 @@ def load_or_build(cfg: dict, cache_dir: str | os.PathLike | None = None, progres
     meta["hash"] = digest
     if cache_dir is not None:
         npy.parent.mkdir(parents=True, exist_ok=True)
-        tmp = npy.with_name(npy.name + f".tmp{os.getpid()}")
-        with open(tmp, "wb") as f:
-            np.save(f, images)
-        os.replace(tmp, npy)
-        tmp_meta = meta_path.with_name(meta_path.name + f".tmp{os.getpid()}")
-        tmp_meta.write_text(json.dumps(meta))
-        os.replace(tmp_meta, meta_path)
+        atomic_write(npy, lambda f: np.save(f, images))
+        atomic_write_text(meta_path, json.dumps(meta))
     return images, meta
 
 

@@ -37,15 +37,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ffjax import metrics as fmetrics
-from ffjax.runlock import folder_lock
-from ffjax.train.checkpoint import (
-    Checkpointer,
-    CheckpointError,
-    atomic_write_text,
-    check_writable,
-    read_model,
-    write_model_json,
-)
+from ffjax.errors import CheckpointError
+from ffjax.files import atomic_write_text, check_writable, folder_lock
+from ffjax.train.checkpoint import Checkpointer, read_model, write_model_json
 from ffjax.train.state import init_state
 from ffjax.train.step import eval_step, feature_step, make_mesh, replicate, shard_batch, train_step
 
@@ -299,7 +293,7 @@ def train(cfg: dict, spec, data, out_dir, resume: bool = False, init_backbone: t
     checkpoint has the weights). Keywords: init_variables (the whole model's variables to start from, e.g.
     the FeelAnyForce release, converted), max_steps (stop early, after checkpointing; resuming continues),
     callback(step, state) (runs after each step; may return a replacement state: tests inject faults),
-    progress, devices. The run folder is locked while training (`ffjax.runlock`): a second training into it
+    progress, devices. The run folder is locked while training (`ffjax.files.folder_lock`): a second training into it
     is refused with FolderLockedError naming the first.
     """
     run_dir = check_writable(out_dir)  # before any work: an unwritable --out fails in a second, not at step N

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import time
 from functools import partial
@@ -33,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ffjax.files import atomic_write_bytes, atomic_write_json
 from ffjax.models.model import BACKBONES
 from ffjax.train import corpus as corpus_lib
 
@@ -354,7 +354,7 @@ def pretrain(cfg: dict, kind: str, folder, progress: bool = True) -> dict:
                         "compile_s": round(t_first or 0.0, 1),
                         "img_per_s": round(steps * bs / max(t_train - (t_first or 0), 1e-9), 1)},
             "backend": jax.default_backend()}
-    _atomic_write(folder / META_FILE, json.dumps(meta, indent=1).encode())
+    atomic_write_json(folder / META_FILE, meta)
     if progress:
         print(f"pretrain[{kind}]: {steps} steps in {t_train:.0f}s, loss {meta['first'].get('loss', 0):.3f} -> "
               f"{meta['final'].get('loss', 0):.3f}; saved {folder / BACKBONE_FILE}")
@@ -402,17 +402,11 @@ def _dino_steps(cfg: dict, kind: str, images: np.ndarray, norm, log_path: Path, 
     return state, history, time.perf_counter() - t1, t_first
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 def save_backbone(path, params, batch_stats=None) -> None:
     """{"params", "batch_stats"} of a backbone as msgpack (atomic)."""
     tree = {"params": jax.device_get(params), "batch_stats": jax.device_get(batch_stats or {})}
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    _atomic_write(Path(path), flax.serialization.msgpack_serialize(tree))
+    atomic_write_bytes(path, flax.serialization.msgpack_serialize(tree))
 
 
 def load_backbone(path, kind: str | None = None):
@@ -524,7 +518,7 @@ def probe_report(cfg: dict, kind: str, folder, data_dir, sensors=("mini-2-gel1",
             print(f"probe[{kind}] {name}: " + ", ".join(f"{k} {v['nl1']:.2f}%" for k, v in res.items()
                                                        if isinstance(v, dict) and "nl1" in v))
     report["seconds"] = round(time.perf_counter() - t0, 1)
-    _atomic_write(Path(folder) / "probe.json", json.dumps(report, indent=1).encode())
+    atomic_write_json(Path(folder) / "probe.json", report)
     return report
 
 

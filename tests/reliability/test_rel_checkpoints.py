@@ -15,7 +15,7 @@ from _tiny_data import write_tiny_split
 import configs
 from ffjax import convert, train
 from ffjax.convert import reader
-from ffjax.train.checkpoint import CheckpointError
+from ffjax.errors import CheckpointError
 
 METHOD = "dino_rd"
 

@@ -18,6 +18,7 @@ from _tiny_data import write_tiny_dataset
 
 import configs
 from ffjax import train
+from ffjax.errors import WriteError
 from ffjax.train import checkpoint as ckpt_lib
 from ffjax.train import loop as loop_lib
 
@@ -154,7 +155,7 @@ def test_unwritable_output_fails_before_any_work(data, tmp_path):
     locked.mkdir()
     locked.chmod(0o500)
     try:
-        with pytest.raises(ckpt_lib.CheckpointWriteError, match=r"locked.* not writable"):
+        with pytest.raises(WriteError, match=r"locked.* not writable"):
             train.train(_cfg(), METHOD, data, locked / "run", progress=False)
         from ffjax.sim import dataset
 
@@ -167,7 +168,8 @@ def test_unwritable_output_fails_before_any_work(data, tmp_path):
 def test_a_second_training_into_a_busy_run_folder_is_refused(data, tmp_path):
     """Two trainings with the same --out used to interleave their logs; the second now stops at once, naming
     the first, and leaves the folder as it was. The lock goes with its holder (no stale lock)."""
-    from ffjax.runlock import FolderLockedError, folder_lock
+    from ffjax.errors import FolderLockedError
+    from ffjax.files import folder_lock
 
     with folder_lock(tmp_path, "training run"):  # what a running training holds
         busy = rf"{tmp_path} is in use by another training run \(pid {os.getpid()}"
@@ -180,7 +182,7 @@ def test_a_second_training_into_a_busy_run_folder_is_refused(data, tmp_path):
 def test_output_under_a_file_fails_before_any_work(data, tmp_path):
     """Works as root too (chmod does not bite there): the output's parent is a file, so mkdir fails."""
     (tmp_path / "file").write_text("x")
-    with pytest.raises(ckpt_lib.CheckpointWriteError, match=r"file/run is not writable"):
+    with pytest.raises(WriteError, match=r"file/run is not writable"):
         train.train(_cfg(), METHOD, data, tmp_path / "file" / "run", progress=False)
     from ffjax.sim import dataset
 
@@ -190,7 +192,7 @@ def test_output_under_a_file_fails_before_any_work(data, tmp_path):
 
 def test_no_space_for_a_checkpoint_fails_fast(data, tmp_path, monkeypatch):
     monkeypatch.setattr(ckpt_lib.shutil, "disk_usage", lambda p: type("U", (), {"free": 1024})())
-    with pytest.raises(ckpt_lib.CheckpointWriteError, match=r"1\.0 KiB|0\.0 MiB free"):
+    with pytest.raises(WriteError, match=r"1\.0 KiB|0\.0 MiB free"):
         train.train(_cfg(), METHOD, data, tmp_path, progress=False)
     assert not (tmp_path / "train_log.jsonl").exists()
 
@@ -208,7 +210,7 @@ def test_disk_full_mid_save_keeps_last_good_checkpoint(data, reference, tmp_path
         return await real(self, x, directory)
 
     monkeypatch.setattr(jch.JsonCheckpointHandler, "_save_fn", full_disk)
-    with pytest.raises(ckpt_lib.CheckpointWriteError, match=r"disk is full.*last good checkpoint \(step 6\)"):
+    with pytest.raises(WriteError, match=r"disk is full.*last good checkpoint \(step 6\)"):
         train.train(_cfg(), METHOD, data, tmp_path, progress=False)
     monkeypatch.setattr(jch.JsonCheckpointHandler, "_save_fn", real)
     assert _ckpt_steps(tmp_path)[-1] == 6

@@ -138,7 +138,8 @@ def test_cli_exits_3_with_the_csv_written(ckpt, tmp_path, monkeypatch, capsys):
 
 def test_a_second_live_recording_into_a_busy_out_folder_is_refused(pred, tmp_path):
     """A second live loop on the same --out would move the first one's forces.csv aside mid-recording."""
-    from ffjax.runlock import FolderLockedError, folder_lock
+    from ffjax.errors import FolderLockedError
+    from ffjax.files import folder_lock
 
     (tmp_path / "forces.csv").write_text("t,fx,fy,fz\n0.0,1,2,3\n")
     with folder_lock(tmp_path, "live recording"), pytest.raises(FolderLockedError, match="another live recording"):
