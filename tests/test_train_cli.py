@@ -35,7 +35,7 @@ def test_trains_on_release_csv(release_csvs, tmp_path, capsys):
     assert info["frame_size"] == list(_smoke_run.frame_size())
 
 
-@pytest.mark.parametrize("entry", ["ffjax.train.__main__:parse_args", "ffjax.train.pretrain:main"])
+@pytest.mark.parametrize("entry", ["ffjax.train.__main__:parse_args", "ffjax.train.pretrain.__main__:main"])
 def test_help_names_the_default_preset_and_its_cost(entry, capsys):
     """Nobody starts a run of minutes without --help saying so."""
     import importlib

@@ -11,17 +11,23 @@ Deterministic from the seed (frame i uses its own generator seeded by (seed, i))
 
 from __future__ import annotations
 
+import concurrent.futures as cf
 import dataclasses
 import functools
 import hashlib
 import json
+import multiprocessing
 import os
 from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
+from ffjax import sim
+from ffjax.data.preprocess import to_unit
 from ffjax.files import atomic_write, atomic_write_text
+from ffjax.sim.dataset import render_size
 
 VERSION = 1
 PROCEDURAL_KINDS = ("pink_noise", "shapes", "gratings", "blobs", "shaded_relief")
@@ -33,7 +39,7 @@ def corpus_settings(cfg: dict) -> dict:
     return {
         "version": VERSION,
         "size": int(p["corpus_size"]),
-        "sim_fraction": float(p.get("corpus_sim_fraction", 0.5)),
+        "sim_fraction": float(p["corpus_sim_fraction"]),
         "input_size": int(cfg["data"]["input_size"]),
         "render_size": [int(v) for v in cfg["data"]["render_size"]],
         "fz_max": float(cfg["data"]["fz_max"]),
@@ -67,9 +73,6 @@ def build(settings: dict, progress: bool = False, workers: int | None = None):
     own generator, so the result does not depend on the split."""
     n, size = settings["size"], settings["input_size"]
     n_sim = int(round(n * settings["sim_fraction"]))
-    sim_ok = _sim_available()
-    if not sim_ok:
-        n_sim = 0  # the simulator is optional here: fall back to procedural images only
     if workers is None:
         workers = min(os.cpu_count() or 1, 8) if n_sim >= 400 else 1
     chunks = [(lo, min(lo + 64, n)) for lo in range(0, n, 64)]
@@ -77,16 +80,11 @@ def build(settings: dict, progress: bool = False, workers: int | None = None):
     kinds, frames = [None] * n, [None] * n
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=n, desc="corpus", unit="img")
     tasks = [(settings, n_sim, lo, hi) for lo, hi in chunks]
     if workers <= 1:
         results = map(_build_chunk, tasks)
     else:
-        import concurrent.futures as cf
-        import multiprocessing
-
         pool = cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
         results = pool.map(_build_chunk, tasks)
     try:
@@ -103,7 +101,7 @@ def build(settings: dict, progress: bool = False, workers: int | None = None):
     # shuffle deterministically so any prefix mixes both halves
     order = np.random.default_rng([settings["seed"], VERSION, 1 << 31]).permutation(n)
     meta = {"settings": settings, "kinds": [kinds[j] for j in order], "frames": [frames[j] for j in order],
-            "sim_available": sim_ok}
+            "sim_available": True}  # a field of the meta format; the simulator ships with ffjax
     return images[order], meta
 
 
@@ -253,15 +251,6 @@ def _colour_mix(rng):
 
 
 # ----------------------------------------------------------------------------- randomized sim frames
-def _sim_available() -> bool:
-    try:
-        from ffjax import sim
-
-        return hasattr(sim, "press") and hasattr(sim, "Shape")
-    except ImportError:
-        return False
-
-
 SENSOR_POOL = 24  # randomized sensors per corpus (each builds its own cached optics tables)
 
 
@@ -270,8 +259,6 @@ def randomized_sensor(rng: np.random.Generator, index: int = 0):
     thickness, markers, brightness, vignette, blur, noise, dome). sim has no randomizer of its own, so
     this builds a `sim.Sensor` with `dataclasses.replace`; its name ("rand-<i>") never equals an
     evaluation sensor's, which also gives it its own background and gel texture."""
-    from ffjax import sim
-
     name, gel = sim.SENSORS[rng.integers(len(sim.SENSORS))]
     base = sim.get_sensor(name, gel=gel)
     leds = []
@@ -309,9 +296,6 @@ def sensor_pool(seed: int, n: int = SENSOR_POOL) -> list:
 
 def sim_frame(rng: np.random.Generator, settings: dict, sensor):
     """One background-subtracted frame of a random procedural shape pressed into `sensor`."""
-    from ffjax import sim
-    from ffjax.sim.dataset import render_size
-
     hsize = 96
     relief = random_relief(rng, hsize)
     height_mm = (1.0 - relief) * rng.uniform(1.0, 4.0)  # lower = touches first
@@ -340,6 +324,4 @@ def sim_frame(rng: np.random.Generator, settings: dict, sensor):
 
 def to_input(image: np.ndarray, background: np.ndarray, size: int) -> np.ndarray:
     """The training input before normalization (data.preprocess: nobg, pad, resize) as uint8."""
-    from ffjax.data.preprocess import to_unit
-
     return np.clip(np.rint(to_unit(image, background, size) * 255), 0, 255).astype(np.uint8)
