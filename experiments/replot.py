@@ -3,9 +3,9 @@
     python -m experiments.replot docs/results/ablation-quick [more folders ...]
 
 For the folders of `experiments.ablation` (Tables I-III), `.stability`, `.sweep_loss`, `.pareto`, and the
-figures of `.bench`, `.contact_probe`, `.layer_check`, `.object_probe` and `.downstream`. The numbers are read
-back unchanged, only the text (Tables I-III's verdict sentences included) and plots are written again (the
-commit the numbers came from stays in results.json and on every figure).
+figures of `.bench`, `.downstream` and the diagnostics `.diagnostics.contact_probe`, `.layer_check` and
+`.object_probe`. The numbers are read back unchanged, only the text (Tables I-III's verdict sentences included)
+and plots are written again (the commit the numbers came from stays in results.json and on every figure).
 """
 
 from __future__ import annotations
@@ -61,10 +61,11 @@ def replot(folder) -> str:
         if all(k in results for k in keys):
             import importlib
 
-            importlib.import_module(f"experiments.{kind}").plot(results, folder / f"{kind}.png")  # figure only
+            probe = importlib.import_module(f"experiments.diagnostics.{kind}")
+            probe.plot(results, folder / f"{kind}.png")  # figure only
             return kind
     raise ValueError(f"{folder}: results.json is not from experiments.ablation, .stability, .sweep_loss, .pareto, "
-                     ".bench, .contact_probe, .layer_check, .object_probe or .downstream")
+                     ".bench, .downstream, .diagnostics.contact_probe, .layer_check or .object_probe")
 
 
 def main(argv=None) -> int:

@@ -128,7 +128,7 @@ def test_a_textured_face_holds_the_gel_like_a_smooth_one():
 
 
 def test_layer_check_smoke(tmp_path):
-    from experiments import layer_check
+    from experiments.diagnostics import layer_check
 
     r = layer_check.main(["--preset", "smoke", "--out", str(tmp_path), "--quiet"])
     for f in ("results.json", "layer_check.md", "layer_check.png"):

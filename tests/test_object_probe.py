@@ -1,10 +1,10 @@
-"""experiments.object_probe: the image signal per shape and a run's read-out (slopes) on the smoke dataset."""
+"""experiments.diagnostics.object_probe: the image signal per shape and a run's read-out (slopes), smoke dataset."""
 
 import json
 
 import numpy as np
 
-from experiments import object_probe
+from experiments.diagnostics import object_probe
 
 
 def test_signal_orders_a_wide_flat_face_below_a_small_sphere():

@@ -150,7 +150,7 @@ def test_training_report_compares_with_the_constant_level(tmp_path):
 
 
 def test_flat_punch_is_the_cube_at_14mm_and_the_contact_probe_runs(tmp_path):
-    from experiments import contact_probe
+    from experiments.diagnostics import contact_probe
     from ffjax import sim
     from ffjax.sim.shapes import flat_punch
 

@@ -67,8 +67,8 @@ def test_label_axis_and_sign_match_the_image(key):
 
 
 def test_shear_probe_physics_report(tmp_path):
-    """experiments.shear_probe (physics part) runs, finds the convention intact, writes its report."""
-    from experiments import shear_probe
+    """experiments.diagnostics.shear_probe (physics part) runs, finds the convention intact, writes its report."""
+    from experiments.diagnostics import shear_probe
 
     res = shear_probe.main(["--out", str(tmp_path)])
     assert res["physics"]["sign_ok"]

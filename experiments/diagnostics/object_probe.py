@@ -1,6 +1,6 @@
 """Where the force is in an object's image, and how much of it a trained model reads (issue 13).
 
-    python -m experiments.object_probe --preset quick [--runs RUN_DIR ...] [--data DATA_DIR] [--out DIR]
+    python -m experiments.diagnostics.object_probe --preset quick [--runs RUN_DIR ...] [--data DATA_DIR] [--out DIR]
 
 1. Signal (no model): for every training indenter and Table I object, centred noiseless presses at Fz = 5 N on
    the training sensor, put through the model's preprocessing at the training size: the image energy of a

@@ -1,6 +1,6 @@
 """Is shear visible, along which axis, and does a trained backbone carry it? Physics checks plus ridge probes.
 
-    python -m experiments.shear_probe [--out DIR] [--data DATA_DIR] [--runs RUN_DIR ...]
+    python -m experiments.diagnostics.shear_probe [--out DIR] [--data DATA_DIR] [--runs RUN_DIR ...]
 
 1. Physics (no data needed): matched noiseless presses that differ only in Fx vs Fy (same magnitude), put
    through the model's preprocessing (background subtraction, pad to square, resize): the image-difference

@@ -1,6 +1,6 @@
 """Where Fz is in the image, per shape: contact size against the pad, and how much a newton changes the frame.
 
-    python -m experiments.contact_probe --preset {smoke,quick,full} [--per-shape N] [--out DIR]
+    python -m experiments.diagnostics.contact_probe --preset {smoke,quick,full} [--per-shape N] [--out DIR]
 
 For each training indenter and each unseen object (Table I), presses drawn as the dataset draws them
 (on the training sensor, data.train_sensor; a sampling stream no split uses; Fz in the upper half of the range,

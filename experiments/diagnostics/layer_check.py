@@ -1,6 +1,6 @@
 """The simulator's gel against the exact small-strain elastic layer, shape by shape.
 
-    python -m experiments.layer_check --preset {smoke,quick,full} [--out DIR]
+    python -m experiments.diagnostics.layer_check --preset {smoke,quick,full} [--out DIR]
 
 Every shape is pressed at the pad centre, untilted, on data.train_sensor, at Fz = F and F + 1 N, twice: by
 `ffjax.sim.press` (what makes the data: the layer solved on its ~0.25 mm grid, with local large-strain
@@ -30,7 +30,7 @@ import numpy as np
 from tqdm import tqdm
 
 from experiments import common
-from experiments.contact_probe import DF, change_per_newton
+from experiments.diagnostics.contact_probe import DF, change_per_newton
 from experiments.tables import save_png
 
 FORCES = (4.0, 8.0)  # N: mid-range presses; the image change is measured from each to +DF

@@ -1,0 +1,11 @@
+"""Diagnostics: one-off probes of the simulator and of trained models, from the investigation of Table I.
+
+    python -m experiments.diagnostics.contact_probe --preset quick   # contact area, pad border, change per newton
+    python -m experiments.diagnostics.object_probe --preset quick [--runs RUN_DIR ...]  # signal and read-out per object
+    python -m experiments.diagnostics.layer_check --preset quick     # the simulator's gel against the exact layer
+    python -m experiments.diagnostics.shear_probe [--data DIR] [--runs RUN_DIR ...]  # is shear visible, on which axis
+
+They are kept because docs/results.md and docs/experiments.md cite their results (docs/results/*_probe-*/,
+layer_check-*/); they are not part of the paper's experiments, and nothing else in experiments/ runs them
+(`experiments.replot` redraws their figures).
+"""
