@@ -276,7 +276,7 @@ def test_step_drops_a_nonfinite_update_without_recompiling(data, reference):
 
 
 def test_faults_harness_reads_progress_past_a_torn_line(tmp_path):
-    from experiments import faults
+    import faults  # tests/reliability/faults.py, the fault-injection harness
 
     assert faults._logged_step(tmp_path) == 0
     (tmp_path / "train_log.jsonl").write_text('{"kind": "train", "step": 5}\n{"kind": "train", "st')

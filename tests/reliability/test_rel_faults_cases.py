@@ -1,11 +1,11 @@
-"""experiments.faults_cases, issue 17's numbered cases: the cheapest ones run through the harness in CI (case 3,
+"""faults_cases (beside this file), issue 17's numbered cases: the cheapest ones run through the harness in CI (case 3,
 calibrate's refused flags; case 7's one-line errors that need no trained model; case 9's small files declaring
 huge tensors), and its checks decide a row."""
 
+import faults
+import faults_cases
 import pytest
 from _tiny_data import write_tiny_split
-
-from experiments import faults, faults_cases
 
 
 @pytest.fixture(scope="module")

@@ -1,18 +1,21 @@
 """Kill/resume fault injection: SIGKILL training, dataset generation and the ablation sweep at random
 points, resume each time, and check that nothing was lost.
 
-    python -m experiments.faults [--preset smoke] [--kills N] [--out DIR] [--ablation] [--seed S]
-                                 [--cases | --only-cases]
+    python tests/reliability/faults.py [--preset smoke] [--kills N] [--out DIR] [--ablation] [--seed S]
+                                       [--cases | --only-cases]
 
 Each part runs the real CLI in a subprocess: once uninterrupted (the reference), then again in a fresh
 folder that is SIGKILLed after a random delay, resumed, killed again, N times, and finally run to the end.
 After every kill the folder is checked (the newest checkpoint must load; finished dataset shards must
 be untouched by the next resume). At the end the results must equal the reference: training params and
 validation metrics bitwise, every dataset shard byte for byte, the ablation's tables. --cases also runs
-issue 17's nine numbered cases (experiments.faults_cases: bad sources, NaN and corrupt weights, bad flags,
+issue 17's nine numbered cases (faults_cases.py beside this file: bad sources, NaN and corrupt weights, bad flags,
 two writers, a full disk, a truncated checkpoint, one-line errors, bad training frames, a zip bomb), each
 through the real CLIs, measured and checked; --only-cases runs just those (a few minutes). Writes
-DIR/results.json and DIR/report.md.
+DIR/results.json and DIR/report.md (DIR: results/faults-<preset> under the repository root unless --out).
+
+A developers' tool, beside the reliability tests that import it (test_rel_faults*.py); run from the repository
+root after `pip install -e ".[test]"` (it imports experiments and ffjax, and faults_cases from this folder).
 """
 
 from __future__ import annotations
@@ -28,17 +31,19 @@ import sys
 import time
 from pathlib import Path
 
+import faults_cases  # beside this file: the script's folder is on sys.path, and pytest's for the tests here
 from tqdm import tqdm
 
-from experiments import common, faults_cases, kernel
+from experiments import common, kernel
 
+COMMAND = "python tests/reliability/faults.py"  # how it is run: its usage line and the command a report records
 TRAIN_METHOD = "dino_rd_scratch"  # no pretraining stage: the kill points land in training itself
 # A few more, smaller shards than the smoke preset so dataset kills land between shards.
 DATA_SET = ("data.train_per_indenter=16", "data.shard_size=16")
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
+    ap = argparse.ArgumentParser(prog=COMMAND, description=__doc__.strip().splitlines()[0])
     ap.add_argument("--preset", default="smoke", choices=("smoke", "quick"))
     ap.add_argument("--kills", type=int, default=5, help="SIGKILLs per part (default 5)")
     ap.add_argument("--out", default=None, help="results folder (default: results/faults-<preset>)")
@@ -54,7 +59,7 @@ def main(argv=None) -> dict:
         ap.error("--kills must be >= 0")
     if args.only_cases and args.ablation:
         ap.error("--only-cases runs no kill/resume part: drop --ablation (or use --cases)")
-    command = "python -m experiments.faults " + " ".join(sys.argv[1:] if argv is None else argv)
+    command = COMMAND + " " + " ".join(sys.argv[1:] if argv is None else argv)
     res = run(args.preset, args.kills, out, args.epochs, args.ablation, args.seed, progress=not args.quiet,
               command=command, cases=args.cases or args.only_cases, kill_parts=not args.only_cases)
     print(report_md(res))

@@ -1,6 +1,6 @@
 """Issue 17's nine numbered reliability cases, each exercised as a user would and measured.
 
-    python -m experiments.faults --only-cases [--out DIR]     # or --cases beside the kill/resume parts
+    python tests/reliability/faults.py --only-cases [--out DIR]     # or --cases beside the kill/resume parts
 
 Every case runs the real command lines (`python -m ffjax.live ...`) in subprocesses from the repository
 root, then measures what a user would see: the exit code, the stderr lines, the key line, and the files
