@@ -15,7 +15,7 @@ import importlib
 from typing import Any
 
 from configs import base
-from configs.checks import is_num, rules
+from configs.checks import is_num, keys, rules
 
 PRESETS = ("smoke", "quick", "full", "gpu", "paper")
 
@@ -202,12 +202,27 @@ def validate(cfg: dict) -> dict:
     return cfg
 
 
-# -- keys that were constants ------------------------------------------------------------------------------
-# Knobs the code held as constants until issue 15 gave them keys, at those constants' values: what a config
-# without them (an older model.json) means. Caches keyed on config sections (data folders, trained runs,
-# pretrained backbones) hash `without_before_keys(cfg)`, so what was made before the keys existed stays valid.
-BEFORE_KEYS = {"data.train_sensor": "mini-1-gel1", "data.fz_min": 0.05, "data.tilt_max_deg": 7.0,
-               "data.shear_noise": 0.06, "model.vit.interpolate_offset": 0.1, "model.decoder.fast": True}
+# -- configs saved before a key existed ---------------------------------------------------------------------
+KEYS = keys(base.SPEC)
+# The keys added after runs, datasets and pretrained backbones were saved (Key.late), at the values the code
+# held as constants before: caches keyed on config sections hash `without_before_keys(cfg)`, so what was made
+# before the keys existed stays valid.
+BEFORE_KEYS = {dotted: key.old_value for dotted, key in KEYS.items() if key.late}
+
+
+def upgrade(saved: dict) -> dict:
+    """A saved config (an earlier run's model.json) as a full config of today: every key it lacks set to what
+    it meant then (Key.before: the value the code used before the key existed). The one place old configs are
+    read; the code then reads every key directly."""
+    out = copy.deepcopy(saved)
+    for dotted, key in KEYS.items():
+        *parents, leaf = dotted.split(".")
+        node = out
+        for part in parents:
+            node = node.setdefault(part, {})
+        if leaf not in node:
+            node[leaf] = key.old_value
+    return out
 
 
 def without_before_keys(cfg: dict) -> dict:

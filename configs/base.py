@@ -3,7 +3,9 @@
 The defaults are the `quick` preset (the README's main command); every other preset is its differences from
 this (configs/smoke.py, paper.py) or from another preset (full.py, gpu.py). `configs.validate` runs the checks
 below; keys checked together (input_size vs. patch, ...) are in configs/__init__.py `_cross_checks`.
-Code that reads a key which old configs (model.json of earlier runs) lack reads it with the default here.
+A config saved before a key existed (model.json of an earlier run) is read through `configs.upgrade`, which
+fills the key with `before=`: the value the code used then (the default where none is given). `late=True` marks
+the keys added after runs and datasets were saved: caches hash configs without them while they hold that value.
 """
 
 from configs.checks import INT, NN, NN_INT, POS, POS_INT, PROB, SCALE, Key, boolean, choice, defaults, num, seq
@@ -22,15 +24,17 @@ SPEC = {
         "unseen_per_object": Key(100, NN_INT),  # Table I: presses per unseen object
         "sensor_test_per_indenter": Key(30, NN_INT),  # Table II: presses per indenter on every sensor
         "calib_samples": Key(100, POS_INT),  # Table III: calibration presses per sensor (the paper's ~100)
-        "train_sensor": Key("mini-1-gel1", choice(*SENSOR_NAMES)),  # sensor of the train, val and unseen splits
-        "fz_min": Key(0.05, NN),  # N; Fz is stratified over [fz_min, fz_max] per shape
+        # sensor of the train, val and unseen splits
+        "train_sensor": Key("mini-1-gel1", choice(*SENSOR_NAMES), late=True),
+        "fz_min": Key(0.05, NN, late=True),  # N; Fz is stratified over [fz_min, fz_max] per shape
         "fz_max": Key(15.0, POS),  # N
-        "tilt_max_deg": Key(7.0, num(0, 90, hi_open=True)),  # roll/pitch of a press uniform in +-tilt_max_deg
-        "shear_noise": Key(0.06, NN),  # std of the shear beyond Fz * tan(tilt), as a fraction of Fz
+        # roll/pitch of a press uniform in +-tilt_max_deg
+        "tilt_max_deg": Key(7.0, num(0, 90, hi_open=True), late=True),
+        "shear_noise": Key(0.06, NN, late=True),  # std of the shear beyond Fz * tan(tilt), as a fraction of Fz
         "shear_max": Key(2.0, NN),  # N; |Fx|, |Fy| are redrawn above it (the simulator caps at mu * Fz)
         "shard_size": Key(512, POS_INT),  # presses per .npz shard on disk
         # mm; widens the depth normalization range (train min - eps, max + eps); the release's is 5 depth units
-        "depth_eps": Key(0.05, NN),
+        "depth_eps": Key(0.05, NN, before=0.0),
     },
     "model": {
         # one section per backbone kind (ffjax.models.BACKBONES), built by that kind's from_config
@@ -43,7 +47,7 @@ SPEC = {
             "layerscale": Key(1e-5, num(0, optional=True)),  # LayerScale init value (DINOv2's 1e-5)
             "pos_grid": Key(None, num(1, integer=True, optional=True)),  # side of the position table; None: input grid
             # DINOv2 resizes the position table by (grid + offset) / table: kept for weight parity
-            "interpolate_offset": Key(0.1, NN),
+            "interpolate_offset": Key(0.1, NN, late=True),
         },
         "resnet": {
             "widths": Key((16, 32, 64, 128), seq(POS_INT)),  # channels per stage
@@ -52,15 +56,18 @@ SPEC = {
         },
         "regressor": {
             "widths": Key((256, 128, 64, 32), seq(POS_INT)),  # hidden layers of the force MLP
-            "normalize_output": Key(True, boolean),  # output scaled by the training force range (out_scale/out_shift)
+            # output scaled by the training force range (out_scale/out_shift)
+            "normalize_output": Key(True, boolean, before=False),
             "out_scale": Key(None, _FORCE3),  # N per unit of output, per axis; None: training fills it from the labels
             "out_shift": Key(None, _FORCE3),  # N, per axis; filled with out_scale
-            "feature_norm": Key(True, boolean),  # BatchNorm on the backbone feature first (docs/training.md)
+            # BatchNorm on the backbone feature first (docs/training.md)
+            "feature_norm": Key(True, boolean, before=False),
         },
         "decoder": {
             "kind": Key("tokens", choice("paper", "tokens")),  # paper: the release's upsample + conv k5; tokens: light
             "channels": Key((32, 16, 16, 8), seq(POS_INT)),  # channels per upsampling stage
-            "fast": Key(True, boolean),  # paper decoder as Dense + pixel shuffle (same function, faster on CPU)
+            # paper decoder as Dense + pixel shuffle (same function, faster on CPU)
+            "fast": Key(True, boolean, late=True),
         },
     },
     "train": {
@@ -70,8 +77,8 @@ SPEC = {
         # (at 1e-4 / 5e-4 constant, 3 epochs reached val Fz MAE 2.24 N; at these, 2.05 N).
         "lr_backbone": Key(5e-4, POS),  # times the method's lr_backbone_scale; 0 when the backbone is frozen
         "lr_heads": Key(1e-3, POS),  # regressor and decoder, times the method's lr_heads_scale
-        "schedule": Key("warmup_cosine", choice("constant", "warmup_cosine")),
-        "warmup_steps": Key(50, NN_INT),  # linear warmup of warmup_cosine
+        "schedule": Key("warmup_cosine", choice("constant", "warmup_cosine"), before="constant"),
+        "warmup_steps": Key(50, NN_INT, before=0),  # linear warmup of warmup_cosine
         "ckpt_every": Key(200, POS_INT),  # steps between resumable checkpoints (and the last step)
         # validate (and pick the best checkpoint) every this many epochs; the last epoch always validates
         "val_every": Key(1, POS_INT),
@@ -79,7 +86,7 @@ SPEC = {
         # a NaN/inf loss or gradient: "stop" (raise, naming the step and batch) or "skip" (drop that update)
         "nonfinite": Key("stop", choice("stop", "skip")),
         # force term of the loss: "newton" (L1 in N, the release) or "normalized" (each axis / its range)
-        "force_loss": Key("normalized", choice("newton", "normalized")),
+        "force_loss": Key("normalized", choice("newton", "normalized"), before="newton"),
         # forward/backward precision of the train step: "float32" or "bfloat16" (float32 master weights,
         # float32 losses, optimizer and BatchNorm statistics; evaluation stays float32)
         "compute_dtype": Key("float32", choice("float32", "bfloat16")),
@@ -87,10 +94,10 @@ SPEC = {
     # DINO self-distillation of the backbones (ffjax.train.pretrain, docs/training.md); steps 0: load real
     # weights instead. Sized for ~2-3 min per backbone on 2 cores.
     "pretrain": {
-        "steps": Key(180, NN_INT),
+        "steps": Key(180, NN_INT, before=100),
         "batch_size": Key(32, POS_INT),
         "lr": Key(5e-4, POS),  # peak, after warmup_steps, cosine down to min_lr_ratio * lr
-        "corpus_size": Key(6000, NN_INT),  # unlabeled images (ffjax.train.corpus)
+        "corpus_size": Key(6000, NN_INT, before=1000),  # unlabeled images (ffjax.train.corpus)
         "out_dim": Key(1024, POS_INT),  # prototypes of the DINO head
         "warmup_steps": Key(20, NN_INT),
         "min_lr_ratio": Key(0.05, PROB),
@@ -106,9 +113,9 @@ SPEC = {
         "global_scale": Key((0.4, 1.0), SCALE),  # area fraction range of a global crop
         "local_scale": Key((0.1, 0.4), SCALE),  # area fraction range of a local crop
         "student_temp": Key(0.1, POS),
-        "teacher_temp": Key(0.05, POS),  # after teacher_temp_warmup steps from teacher_temp_start
+        "teacher_temp": Key(0.05, POS, before=0.04),  # after teacher_temp_warmup steps from teacher_temp_start
         "teacher_temp_start": Key(0.04, POS),
-        "teacher_temp_warmup": Key(60, NN_INT),
+        "teacher_temp_warmup": Key(60, NN_INT, before=0),
         "momentum": Key(0.996, PROB),  # teacher EMA momentum at step 0 (cosine to 1)
         "center_momentum": Key(0.9, PROB),  # EMA of the teacher centre
         "flip": Key(0.5, PROB),  # augmentation: flip probability

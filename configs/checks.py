@@ -15,12 +15,24 @@ from typing import Any
 Check = Callable[[Any], "str | None"]
 
 
+AS_DEFAULT = "<the default>"  # Key.before when a config without the key meant the default
+
+
 @dataclasses.dataclass(frozen=True)
 class Key:
-    """A config key in configs/base.py: its default and the check every value of it must pass."""
+    """A config key in configs/base.py: its default, the check every value of it must pass, what a saved config
+    without it means (`before`: the value the code used before the key existed; configs.upgrade fills it in)
+    and whether caches ignore it at that value (`late`: added after runs and datasets were saved, so their cache
+    keys, hashed without it, stay valid)."""
 
     default: Any
     check: Check
+    before: Any = AS_DEFAULT
+    late: bool = False
+
+    @property
+    def old_value(self) -> Any:
+        return copy.deepcopy(self.default if self.before == AS_DEFAULT else self.before)
 
 
 def defaults(spec: dict) -> dict:
@@ -28,12 +40,17 @@ def defaults(spec: dict) -> dict:
     return {k: defaults(v) if isinstance(v, dict) else copy.deepcopy(v.default) for k, v in spec.items()}
 
 
-def rules(spec: dict, prefix: str = "") -> dict[str, Check]:
-    """dotted key -> checker, for every Key of a spec."""
+def keys(spec: dict, prefix: str = "") -> dict[str, Key]:
+    """dotted key -> Key, for every Key of a spec."""
     out = {}
     for k, v in spec.items():
-        out.update(rules(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v.check})
+        out.update(keys(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
     return out
+
+
+def rules(spec: dict) -> dict[str, Check]:
+    """dotted key -> checker, for every Key of a spec."""
+    return {k: v.check for k, v in keys(spec).items()}
 
 
 def derive(parent: dict, changes: dict, where: str = "") -> dict:

@@ -79,11 +79,11 @@ def main(argv=None) -> dict:
 # ----------------------------------------------------------------------------------------- checkpoints
 def find_checkpoints(cfg: dict, args, out: Path) -> tuple[dict, str]:
     """{method: [run dirs]} and where they came from."""
-    from ffjax.train import read_model_json
+    from ffjax import store
 
     if args.checkpoint:
         run = Path(args.checkpoint).absolute()
-        return {read_model_json(run)["method"]: [str(run)]}, f"--checkpoint {run}"
+        return {store.describe(run).spec.name: [str(run)]}, f"--checkpoint {run}"
     folder = Path(args.ablation or common.ROOT / "results" / f"ablation-{cfg['preset']}")
     res = common.read_json(folder / "results.json")
     if res and res.get("checkpoints"):

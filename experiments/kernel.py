@@ -127,13 +127,12 @@ class _Evaluator:
     """A run's model, its regressor and the scoring of (features, forces) pairs."""
 
     def __init__(self, folder: Path, data_root: Path):
-        from ffjax import calibrate, models
-        from ffjax.train import load_checkpoint
+        from ffjax import calibrate, store
 
-        run_cfg, spec, self.stats, self.variables = load_checkpoint(folder, "best")
-        self.size = int(run_cfg["data"]["input_size"])
-        self.model = models.build(run_cfg["model"], spec, self.size)
-        self.head = run_cfg["model"]["regressor"]
+        trained = store.load(folder)
+        self.stats, self.variables, self.size, self.model = (trained.stats, trained.variables, trained.input_size,
+                                                             trained.build())
+        self.head = trained.cfg["model"]["regressor"]
         self.reg = self.variables["params"]["regressor"]
         self.reg_stats = calibrate.regressor_stats(self.variables)
         self.data_root = data_root

@@ -188,11 +188,11 @@ class Timers:
     def __init__(self, run_dir: Path, arrays: dict, batch_size: int):
         import jax
 
-        from ffjax import models, train
+        from ffjax import models, store, train
 
-        cfg, spec, _, variables = train.load_checkpoint(run_dir, "best")
-        size = int(cfg["data"]["input_size"])
-        model = models.build(cfg["model"], spec, size)
+        trained = store.load(run_dir)
+        cfg, spec, size, variables = trained.cfg, trained.spec, trained.input_size, trained.variables
+        model = trained.build()
         # Force only: what a deployed estimator returns; XLA drops the unused depth decoder.
         self.infer = jax.jit(lambda v, x: model.apply(v, x, train=False)["force"])
         self.variables = variables
@@ -265,7 +265,7 @@ def measure(cells: dict, arrays: dict, batch_size: int, repeats: dict, progress:
 def run(cfg: dict, methods, sizes, n_seeds: int, out, data_dir=None, full_grid: bool = False,
         force: bool = False, progress: bool = True, reuse_from=None) -> dict:
     """Train/evaluate every cell (cached), time them all in one phase, write the chart, tables and JSON."""
-    from ffjax import data, train
+    from ffjax import data, store
     from ffjax.sim import dataset
 
     out = Path(out).absolute()
@@ -294,7 +294,7 @@ def run(cfg: dict, methods, sizes, n_seeds: int, out, data_dir=None, full_grid: 
 
     agg = tables.aggregate(per_run)
     # Timing: the first seed's checkpoint of each cell (all seeds share one architecture).
-    stats = data.Stats.from_dict(train.read_model_json(run_dirs[next(iter(run_dirs))][0])["stats"])
+    stats = store.describe(run_dirs[next(iter(run_dirs))][0]).stats
     val = data.load_arrays(data.open_split(dataset.split_dir(data_root, "val")), stats,
                            int(cfg["data"]["input_size"]))
     env = {"loadavg_before": os.getloadavg(), "cpu_before": _cpu_times()}

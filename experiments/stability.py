@@ -224,12 +224,10 @@ def doubles_at(levels, errors, ref: int = 0, factor: float = 2.0):
 
 def score_run(run_dir, sets: dict) -> dict:
     """{factor: [summary per level]} of one checkpoint on every test set (one batched predict)."""
-    from ffjax import data, metrics, models
-    from ffjax.train import load_checkpoint
+    from ffjax import data, metrics, store
 
-    run_cfg, spec, stats, variables = load_checkpoint(run_dir, "best")
-    size = int(run_cfg["data"]["input_size"])
-    model = models.build(run_cfg["model"], spec, size)
+    trained = store.load(run_dir)
+    stats, variables, size, model = trained.stats, trained.variables, trained.input_size, trained.build()
     keys = [(fn, li) for fn, lv in sets.items() for li in range(len(lv)) if len(lv[li]["force"])]
     x = np.concatenate([data.preprocess_image(sets[fn][li]["image"], sets[fn][li]["background"], stats, size)
                         for fn, li in keys]) if keys else np.zeros((0, size, size, 3), np.float32)
@@ -426,10 +424,10 @@ MECHANISM = {
 
 
 def _traits(m: str, results: dict) -> str:
-    from ffjax.train import read_model
+    from ffjax import store
 
     runs = results.get("checkpoints", {}).get(m)
-    s = registry.get(m) if m in registry.names() or not runs else read_model(runs[0]).spec  # a sweep's variant
+    s = registry.get(m) if m in registry.names() or not runs else store.describe(runs[0]).spec  # a sweep's variant
     parts = [f"{'ResNet' if s.backbone == 'resnet' else 'ViT'} backbone",
              "frozen" if s.frozen_backbone else ("fine-tuned" if s.pretrained else "trained from scratch"),
              "with the depth head" if s.depth_head else "without a depth head"]

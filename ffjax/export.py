@@ -1,13 +1,16 @@
 """Export a predictor as one serialized `jax.export` function: raw frames in, forces out.
 
-    python -m ffjax.export --checkpoint RUN --out force.jaxexport [--batch 1] [--platforms cpu,cuda]
+    python -m ffjax.export --checkpoint RUN --out force.jaxexport [--batch 1] [--platforms cpu,cuda] [--force]
 
 writes `force.jaxexport` (StableHLO with the weights baked in) and `force.jaxexport.json` (frame size,
-channel order, force range, input/output description). The whole preprocessing is inside the function:
-background subtraction (clip(img - bg + 127)), pad to square, resize, /255, normalization. The resize is
-written as two small matrix products whose weights are taken from cv2 at export time (the INTER_AREA /
-INTER_LINEAR kernels `ffjax.data.preprocess_image` uses), so the exported function matches the Predictor
-to float32 rounding (tests check |difference| < 1e-4 N). --batch 0 exports a symbolic batch size.
+channel order, force range, input/output description, the export's sha256; written last). An existing export
+is replaced only with --force, and never inside the checkpoint folder it is made from.
+
+The whole preprocessing is inside the function: background subtraction (clip(img - bg + 127)), pad to
+square, resize, /255, normalization. The resize is written as two small matrix products whose weights are taken
+from cv2 at export time (the INTER_AREA / INTER_LINEAR kernels `ffjax.data.preprocess_image` uses), so the
+exported function matches the Predictor to float32 rounding (tests check |difference| < 1e-4 N). --batch 0
+exports a symbolic batch size.
 
 Running it needs only jax (no ffjax, flax or training code):
 
@@ -17,14 +20,13 @@ Running it needs only jax (no ffjax, flax or training code):
     info = json.load(open("force.jaxexport.json"))          # frame_size, channels ("RGB"), force range
     forces = np.asarray(fn.call(frames, background))        # (B, H, W, 3), (H, W, 3) uint8 RGB -> (B, 3) N
 
-(or `ffjax.export.load(path)(frames, background)`, which also checks shapes and flags out-of-range and NaN/inf
-forces like `inference.Predictor.predict`).
+(or `ffjax.export.load(path)(frames, background)`, which also verifies the file against the sha256 in its
+sidecar, checks shapes and flags out-of-range and NaN/inf forces like `inference.Predictor.predict`).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import warnings
 from pathlib import Path
@@ -35,7 +37,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ffjax import inference
-from ffjax.files import atomic_write_bytes, atomic_write_text
+from ffjax.errors import CheckpointError
+from ffjax.files import atomic_write_bytes, atomic_write_json, check_output, read_json, sha256_bytes
 
 FORMAT = "ffjax.export/1"
 
@@ -72,7 +75,7 @@ def preprocess_fn(frame_size, input_size: int, mean, std):
 def forces_fn(pred: inference.Predictor):
     """f(images uint8 (B,H,W,3) RGB, background uint8 (H,W,3) RGB) -> forces float32 (B,3), weights closed over."""
     pre = preprocess_fn(pred.frame_size, pred.input_size, pred.stats.mean, pred.stats.std)
-    model, variables = pred.model, jax.tree.map(jnp.asarray, pred.checkpoint.variables)
+    model, variables = pred.model, jax.tree.map(jnp.asarray, pred.trained.variables)
 
     def fn(images, background):
         return model.apply(variables, pre(images, background), train=False)["force"]
@@ -94,11 +97,14 @@ def sidecar_path(path) -> Path:
 
 
 def save(pred: inference.Predictor, path, batch: int = 1, platforms=None) -> Path:
-    """Write the serialized function to `path` and its description to `path`.json; returns `path`."""
+    """Write the serialized function to `path` and its description (with the file's sha256) to `path`.json;
+    returns `path`. A kill or a full disk never leaves half a file; between the two files it leaves an export
+    that its old sidecar refuses."""
     exp = export(pred, batch, platforms)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(path, exp.serialize())  # a kill or a full disk never leaves half an export
+    raw = exp.serialize()
+    atomic_write_bytes(path, raw)
     info = {
         "format": FORMAT,
         "inputs": {"images": f"uint8 ({'B' if batch == 0 else batch}, H, W, 3) {inference.CHANNELS}",
@@ -106,14 +112,15 @@ def save(pred: inference.Predictor, path, batch: int = 1, platforms=None) -> Pat
         "output": "float32 (B, 3): Fx, Fy, Fz in newtons",
         "batch": None if batch == 0 else int(batch),
         "platforms": list(exp.platforms),
-        "checkpoint": pred.describe() | {"path": pred.checkpoint.path},
+        "checkpoint": pred.describe() | {"path": pred.trained.path},
         "frame_size": list(pred.frame_size),
         "channels": inference.CHANNELS,
         "force_min": pred.force_min.tolist(),
         "force_max": pred.force_max.tolist(),
         "jax_version": jax.__version__,
+        "sha256": sha256_bytes(raw),
     }
-    atomic_write_text(sidecar_path(path), json.dumps(info, indent=2) + "\n")
+    atomic_write_json(sidecar_path(path), info, indent=2)
     return path
 
 
@@ -125,13 +132,20 @@ class ExportedPredictor:
         self.path = Path(path)
         if not self.path.is_file():
             raise FileNotFoundError(f"{self.path}: no such export file (python -m ffjax.export --out FILE ...)")
-        try:
-            self.exported = jax.export.deserialize(bytearray(self.path.read_bytes()))
-        except Exception as e:  # noqa: BLE001 - flatbuffers/struct errors of a damaged file name neither it nor why
-            raise ValueError(f"{self.path} is not a readable jax export (truncated, corrupt or another file: "
-                             f"{type(e).__name__}); export it again") from e
         side = sidecar_path(self.path)
-        self.info = inference._read_json(side) or {}
+        self.info = read_json(side) or {}
+        raw = self.path.read_bytes()
+        if self.info.get("sha256") and sha256_bytes(raw) != self.info["sha256"]:
+            raise CheckpointError(f"{self.path} is corrupt, truncated or from another export: its sha256 differs "
+                                  f"from the one in {side.name}; export it again")
+        if not self.info:
+            warnings.warn(f"{self.path} has no {side.name} beside it: the file cannot be verified and frame sizes "
+                          "are not checked", stacklevel=2)
+        try:
+            self.exported = jax.export.deserialize(bytearray(raw))
+        except Exception as e:  # noqa: BLE001 - flatbuffers/struct errors of a damaged file name neither it nor why
+            raise CheckpointError(f"{self.path} is not a readable jax export (truncated, corrupt or another file: "
+                                  f"{type(e).__name__}); export it again") from e
         self.last_out_of_range = self.last_nonfinite = np.zeros((0,), bool)
 
     def __call__(self, images, background) -> np.ndarray:
@@ -173,10 +187,13 @@ def main(argv=None) -> int:
     p.add_argument("--platforms", default=None,
                    help="comma-separated lowering targets, e.g. cpu,cuda (default: this machine's)")
     p.add_argument("--frame-size", default=None, help="HxW of the sensor frames, if the checkpoint lacks it")
+    p.add_argument("--force", action="store_true", help="replace an existing export (and its sidecar)")
     a = p.parse_args(argv)
     from ffjax import cli
 
-    cli.check_out(p, Path(a.out).absolute().parent)  # before loading and compiling
+    for target in (a.out, sidecar_path(a.out)):  # before loading and compiling
+        check_output(target, reads=[a.checkpoint], force=a.force)
+    cli.check_out(p, Path(a.out).absolute().parent)
     fs = tuple(int(v) for v in a.frame_size.lower().split("x")) if a.frame_size else None
     pred = inference.load(a.checkpoint, a.which, frame_size=fs)
     plats = a.platforms.split(",") if a.platforms else None

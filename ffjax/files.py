@@ -8,7 +8,8 @@
 - `check_output(out, reads=..., force=...)`: refuse an output inside (or holding) a folder the command reads
   from, and an existing output unless --force.
 - `folder_lock(folder)`: one writer per output folder (an flock the kernel drops when the process dies).
-- `read_json(path)`: a JSON object, or an error naming the file; `sha256_bytes`, `json_digest` for verifying.
+- `read_json(path)`: a JSON object, or an error naming the file; `sha256_bytes`, `json_digest` (of `as_json`'s
+  form, so the same before writing and after reading) for verifying.
 """
 
 from __future__ import annotations
@@ -106,19 +107,24 @@ def _inside(path: Path, folder: Path) -> bool:
 def check_output(out, reads=(), force: bool = False, flag: str = "--out") -> Path:
     """`out` resolved, unless it would write into what the command reads or over an existing output.
 
-    reads: the inputs (files or folders). An output inside an input folder, or one that holds an input, is
-    refused whatever `force` says (writing it would damage the input); an existing output is refused unless
-    `force` (the caller then replaces it). FileExistsError naming `flag` either way."""
+    reads: the inputs (files or folders; None entries are skipped). An output inside an input folder is refused
+    whatever `force` says (it would change what is read: a run's files, a folder of frames); so is replacing an
+    output that holds an input. An existing output is refused unless `force` (the caller then replaces it). An
+    empty folder, or one holding only a lock, is no output yet. FileExistsError naming `flag`."""
     target = Path(out).resolve()
+    empty = target.is_dir() and not any(p.name != LOCK_NAME for p in target.iterdir())
+    replacing = target.exists() and not empty
     for source in reads:
         if source is None:
             continue
         src = Path(source).resolve()
-        if (src.is_dir() and _inside(target, src)) or _inside(src, target):
-            kind = "folder" if src.is_dir() else "file"
-            raise FileExistsError(f"{flag} {out} would write {'into' if _inside(target, src) else 'over'} the "
-                                  f"{kind} {source} this command reads; choose an output outside it")
-    if target.exists() and not force and not (target.is_dir() and not any(target.iterdir())):
+        if src.is_dir() and _inside(target, src):
+            raise FileExistsError(f"{flag} {out} is inside {source}, which this command reads: writing there "
+                                  "would change its input; choose an output outside it")
+        if _inside(src, target) and (src == target or replacing):
+            raise FileExistsError(f"{flag} {out} holds {source}, which this command reads: replacing it would "
+                                  "destroy the input; choose another output")
+    if replacing and not force:
         raise FileExistsError(f"{flag} {out} already exists; pass --force to replace it, or choose another "
                               f"{flag}")
     return target
@@ -195,6 +201,19 @@ def read_json(path, missing_ok: bool = True) -> dict | None:
 
 def sha256_bytes(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
+
+
+def as_json(obj):
+    """`obj` as JSON reads it back: tuples and sets as lists, numpy scalars and arrays as numbers and lists."""
+    return json.loads(json.dumps(obj, default=_plain))
+
+
+def _plain(x):
+    if hasattr(x, "tolist"):
+        return x.tolist()
+    if isinstance(x, (tuple, set)):
+        return list(x)
+    raise TypeError(f"{type(x).__name__} is not JSON")
 
 
 def json_digest(obj) -> str:

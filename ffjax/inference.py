@@ -12,7 +12,7 @@ Inputs: uint8 frames, (H, W, 3) or (N, H, W, 3), channel order RGB (what `ffjax.
 Frames straight from OpenCV (`cv2.VideoCapture.read`, `cv2.imread`) are BGR: pass `bgr=True` to
 set_background/predict/predict_depth, or convert once with `frame[..., ::-1]` / cv2.cvtColor(f, cv2.COLOR_BGR2RGB).
 `ffjax.data.sources.read_rgb`, PIL and imageio give RGB already. BGR passed as RGB is not an error (it cannot
-be told apart per frame), but when the checkpoint has a reference background (see read_checkpoint: model.json
+be told apart per frame), but when the checkpoint has a reference background (see ffjax.store: model.json
 "background_stats", a sensor.json, or a calibrated bundle's background.png) set_background warns if the
 reversed channel order matches it better.
 
@@ -29,53 +29,23 @@ What is refused (raised) vs flagged (warned, per frame), so a control loop never
 Preprocessing is `ffjax.data.preprocess_image` with the checkpoint's statistics, the same function training
 used (numpy/cv2, once per frame); the network is one jitted apply, compiled once per batch shape.
 
-Folders `load` accepts (`read_checkpoint` tells them apart):
-  training run   RUN/model.json + RUN/best/ (+ checkpoints/), written by `ffjax.train`
-  bundle         DIR/model.json + DIR/variables.msgpack, written by `ffjax.calibrate` (`save_bundle`)
-  converted      DIR/convert.json + DIR/variables.msgpack, written by `python -m ffjax.convert feelanyforce`.
-                 It holds no statistics: the release's are used (RELEASE_STATS: normalization mean/std and
-                 depth range from its code, input 224 from convert.json, force range (-2,-2,0)..(2,2,15) N
-                 approximated from the paper). A `stats.json` (a data.Stats dict) beside it overrides them.
-
-Expected frame size (H, W), the first that applies: the `frame_size` argument; "frame_size" in model.json
-(bundles record it); "frame_size" in a `sensor.json` beside the weights; 240x320 (GelSight Mini) for a
-converted release checkpoint; else the run's cfg["data"]["render_size"] (the simulator frames of its
-preset; `frame_size_source` says "assumed" then). Frames of another size or channel count are refused
-with a message; `strict_size=False` accepts any size that matches the background (a warning is given).
+`load` accepts every folder `ffjax.store.load` reads (a training run, a calibrated bundle, converted release
+weights) and where it finds the expected frame size (H, W). Frames of another size or channel count are
+refused with a message; `strict_size=False` accepts any size that matches the background (a warning is given).
 """
 
 from __future__ import annotations
 
 import functools
-import hashlib
-import json
 import time
 import warnings
-from dataclasses import dataclass, field
-from pathlib import Path
 
 import jax
 import numpy as np
 
 from ffjax import data as fdata
-from ffjax.jsontree import retuple
-
-CHANNELS = "RGB"
-BUNDLE_FORMAT = "ffjax.predictor/1"
-MODEL_JSON, VARIABLES, SENSOR_JSON, STATS_JSON = "model.json", "variables.msgpack", "sensor.json", "stats.json"
-RELEASE_FRAME = (240, 320)
-# The FeelAnyForce release's normalization (REFERENCE.md); depth range is min - eps, max + eps, eps 5, in the
-# release's depth units. Force range: approximate, from the paper's dataset description.
-RELEASE_STATS = {
-    "mean": [0.3654, 0.3716, 0.3693],
-    "std": [0.2120, 0.2151, 0.2137],
-    "depth_min": -8.3115 - 5.0,
-    "depth_max": 27.0323 + 5.0,
-    "force_min": [-2.0, -2.0, 0.0],
-    "force_max": [2.0, 2.0, 15.0],
-    "input_size": 224,
-    "depth_eps": 5.0,
-}
+from ffjax import store
+from ffjax.store import CHANNELS, Trained
 
 
 class ForceRangeWarning(UserWarning):
@@ -154,195 +124,6 @@ def _r(v) -> list[float]:
     return [round(float(x), 1) for x in v]
 
 
-@dataclass
-class Checkpoint:
-    """Everything a predictor needs, whichever folder it came from."""
-
-    cfg: dict  # full config (model section used to rebuild the network; calibrate section for defaults)
-    spec: object  # registry.Method
-    stats: fdata.Stats
-    variables: dict
-    input_size: int
-    frame_size: tuple[int, int]
-    frame_size_source: str
-    kind: str  # "run" | "bundle" | "converted"
-    path: str
-    info: dict = field(default_factory=dict)
-    background_stats: dict | None = None  # the training background's per-channel mean/std, when recorded
-
-    def build_model(self):
-        from ffjax import models
-
-        return models.build(self.cfg["model"], self.spec, self.input_size)
-
-
-def _read_json(path: Path) -> dict | None:
-    """The JSON object in `path` (None if there is no file); CheckpointError naming the file otherwise."""
-    from ffjax.train.checkpoint import CheckpointError
-
-    if not path.is_file():
-        return None
-    try:
-        obj = json.loads(path.read_text())
-    except (ValueError, UnicodeDecodeError) as e:
-        raise CheckpointError(f"{path} is not valid JSON (truncated, or not written by ffjax): {e}") from e
-    if not isinstance(obj, dict):
-        raise CheckpointError(f"{path} holds a JSON {type(obj).__name__}, not an object: not written by ffjax")
-    return obj
-
-
-def _frame_size(folder: Path, info: dict, override, fallback, fallback_source: str):
-    if override is not None:
-        return tuple(int(v) for v in override), "argument"
-    if info.get("frame_size"):
-        return tuple(int(v) for v in info["frame_size"]), MODEL_JSON
-    sensor = _read_json(folder / SENSOR_JSON)
-    if sensor and sensor.get("frame_size"):
-        return tuple(int(v) for v in sensor["frame_size"]), SENSOR_JSON
-    return tuple(int(v) for v in fallback), fallback_source
-
-
-def read_checkpoint(path, which: str = "best", frame_size=None) -> Checkpoint:
-    """Read a training run, a bundle (model.json + variables.msgpack) or a converted release folder.
-
-    The training background's statistics ("background_stats": {"mean", "std"} per RGB channel) come from
-    model.json, else a sensor.json beside the weights, else a background.png there (calibrated bundles keep
-    the sensor's); set_background compares against them."""
-    ckpt = _read_checkpoint(Path(path), which, frame_size)
-    ckpt.background_stats = _reference_background(Path(path), ckpt.info)
-    return ckpt
-
-
-def _reference_background(folder: Path, info: dict) -> dict | None:
-    for source in (info, _read_json(folder / SENSOR_JSON) or {}):
-        if source.get("background_stats"):
-            return source["background_stats"]
-    if (folder / "background.png").is_file():
-        from ffjax.data.sources import read_rgb
-
-        try:
-            return background_stats(read_rgb(folder / "background.png"))
-        except Exception as e:  # noqa: BLE001 - a reference is optional: a bad file only loses the check
-            warnings.warn(f"{folder / 'background.png'} unreadable ({e}): no background check", stacklevel=3)
-    return None
-
-
-def _read_checkpoint(folder: Path, which: str, frame_size) -> Checkpoint:
-
-    import configs
-    from ffjax import registry
-
-    if not folder.is_dir():
-        raise FileNotFoundError(f"{folder}: no such checkpoint folder")
-    info = _read_json(folder / MODEL_JSON)
-    if info is not None and (folder / VARIABLES).is_file():  # bundle
-        return _read_bundle(folder, info, frame_size)
-    if info is not None and info.get("format") == BUNDLE_FORMAT:  # not a run: "no best checkpoint" would mislead
-        from ffjax.train.checkpoint import CheckpointError
-
-        raise CheckpointError(f"{folder / VARIABLES} is missing: {folder} is a bundle (its {MODEL_JSON} says so) "
-                              "without its weights; copy the whole folder again")
-    if info is not None:  # training run
-        from ffjax import train
-
-        cfg, spec, stats, variables = train.load_checkpoint(folder, which)
-        fs, src = _frame_size(folder, info, frame_size, cfg["data"]["render_size"], "assumed")
-        return Checkpoint(cfg, spec, stats, variables, int(info["input_size"]), fs, src, "run", str(folder),
-                          info)
-    if (folder / "convert.json").is_file():
-        from ffjax.convert import store
-
-        meta = store.read_meta(folder)
-        if meta["kind"] != "feelanyforce" or "regressor" not in meta["model"]:
-            raise ValueError(f"{folder} holds converted {meta['kind']} backbone weights, not a force model: "
-                             f"use it to start training (--init), then load the run")
-        model_cfg, variables = store.load(folder)
-        cfg = configs.get("paper")
-        cfg["model"].update(retuple(model_cfg))
-        size = int(meta.get("input_size", 224))
-        stats_d = _read_json(folder / STATS_JSON) or {**RELEASE_STATS, "input_size": size}
-        stats = fdata.Stats.from_dict(stats_d)
-        fs, src = _frame_size(folder, {}, frame_size, RELEASE_FRAME, "release default (GelSight Mini)")
-        spec = registry.get("dino_rd" if "decoder" in model_cfg else "dino_r")
-        return Checkpoint(cfg, spec, stats, variables, size, fs, src, "converted", str(folder), meta)
-    raise FileNotFoundError(
-        f"{folder}: not a checkpoint folder; expected {MODEL_JSON} (a training run or calibrated bundle) or "
-        f"convert.json + {VARIABLES} (python -m ffjax.convert feelanyforce ...)")
-
-
-_BUNDLE_KEYS = ("method", "input_size", "stats", "cfg")
-
-
-def _read_bundle(folder: Path, info: dict, frame_size) -> Checkpoint:
-    """A calibrated/exported bundle, checked: ffjax's model.json keys, the weights' sha256 (recorded by
-    save_bundle; older bundles carry none), and every tensor's shape against the model model.json describes."""
-    from flax import serialization
-
-    from ffjax.train.checkpoint import CheckpointError, saved_model
-
-    missing = [k for k in _BUNDLE_KEYS if k not in info]
-    if missing:
-        raise CheckpointError(f"{folder / MODEL_JSON} lacks {missing}: not an ffjax model.json")
-    raw = (folder / VARIABLES).read_bytes()
-    digest = info.get("variables_sha256")
-    if digest and hashlib.sha256(raw).hexdigest() != digest:
-        raise CheckpointError(f"{folder / VARIABLES} is corrupt or truncated ({len(raw)} bytes): its sha256 differs "
-                              f"from the one in {MODEL_JSON}; copy or export the bundle again")
-    try:
-        variables = serialization.msgpack_restore(raw)
-        saved = saved_model(info, folder / MODEL_JSON)  # the reader training runs use too
-    except Exception as e:  # noqa: BLE001 - msgpack, config and registry errors all mean one thing here
-        raise CheckpointError(f"cannot read the bundle {folder} ({type(e).__name__}: {str(e)[:200]}): "
-                              f"{VARIABLES} truncated or {MODEL_JSON} not ffjax's") from e
-    cfg, stats, spec, size = saved.cfg, saved.stats, saved.spec, saved.input_size
-    abstract = saved.abstract_variables()
-    want = {k: abstract[k] for k in ("params", "batch_stats") if abstract.get(k)}
-    got = {k: variables.get(k) for k in want}
-    ok = jax.tree.structure(want) == jax.tree.structure(got) and all(
-        tuple(a.shape) == tuple(np.shape(b)) for a, b in zip(jax.tree.leaves(want), jax.tree.leaves(got)))
-    if not ok:
-        raise CheckpointError(f"{folder / VARIABLES} does not hold the weights of the {spec.name} model "
-                              f"{MODEL_JSON} describes (different tensors or shapes)")
-    fs, src = _frame_size(folder, info, frame_size, cfg["data"]["render_size"], "assumed")
-    return Checkpoint(cfg, spec, stats, variables, size, fs, src, "bundle", str(folder), info)
-
-
-def save_bundle(out, ckpt: Checkpoint, variables: dict | None = None, frame_size=None, background=None,
-                **extra) -> Path:
-    """Write a self-contained folder (model.json + variables.msgpack) that `load` accepts.
-
-    background: the sensor's no-contact frame (uint8 RGB); its statistics are recorded so a predictor can
-    warn about a background from another sensor (default: the checkpoint's recorded ones, if any)."""
-    import dataclasses
-
-    from flax import serialization
-
-    from ffjax.train.checkpoint import atomic_write_bytes, atomic_write_text
-
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    tree = jax.tree.map(np.asarray, ckpt.variables if variables is None else variables)
-    raw = serialization.msgpack_serialize(tree)
-    atomic_write_bytes(out / VARIABLES, raw)
-    info = {
-        "format": BUNDLE_FORMAT,
-        "method": ckpt.spec.name,
-        "spec": dataclasses.asdict(ckpt.spec),
-        "input_size": ckpt.input_size,
-        "frame_size": list(frame_size or ckpt.frame_size),
-        "channels": CHANNELS,
-        "stats": ckpt.stats.to_dict(),
-        "force_range": {"min": list(ckpt.stats.force_min), "max": list(ckpt.stats.force_max)},
-        "cfg": json.loads(json.dumps(ckpt.cfg, default=list)),
-        "parent": {"path": ckpt.path, "kind": ckpt.kind},
-        "background_stats": background_stats(background) if background is not None else ckpt.background_stats,
-        "variables_sha256": hashlib.sha256(raw).hexdigest(),
-        **extra,
-    }
-    atomic_write_text(out / MODEL_JSON, json.dumps(info, indent=2) + "\n")
-    return out
-
-
 @functools.lru_cache(maxsize=16)
 def _apply_fns(model):
     """Jitted force / depth applies, one pair per model config (linen modules hash by their fields), so
@@ -355,14 +136,14 @@ class Predictor:
     """Forces from raw uint8 RGB frames (bgr=True for OpenCV's BGR); see the module docstring for what is
     refused and what is flagged. Not thread-safe (last_* attributes)."""
 
-    def __init__(self, ckpt: Checkpoint, strict_size: bool = True, range_margin: float = 0.05):
-        self.checkpoint = ckpt
+    def __init__(self, trained: Trained, strict_size: bool = True, range_margin: float = 0.05):
+        self.trained = trained
         self.strict_size = strict_size
         self.range_margin = float(range_margin)
-        self.model = ckpt.build_model()
-        self.variables = jax.device_put(ckpt.variables)
+        self.model = trained.build()
+        self.variables = jax.device_put(trained.variables)
         self._force_fn, depth_fn = _apply_fns(self.model)
-        self._depth_fn = depth_fn if ckpt.spec.depth_head else None
+        self._depth_fn = depth_fn if trained.spec.depth_head else None
         self.background: np.ndarray | None = None
         self.background_issues: list[str] = []
         self.last_out_of_range = np.zeros((0,), bool)
@@ -373,21 +154,21 @@ class Predictor:
     # -- what the checkpoint expects -------------------------------------------------------------------
     @property
     def stats(self) -> fdata.Stats:
-        return self.checkpoint.stats
+        return self.trained.stats
 
     @property
     def input_size(self) -> int:
         """Side of the square model input (after background subtraction, pad, resize)."""
-        return self.checkpoint.input_size
+        return self.trained.input_size
 
     @property
     def frame_size(self) -> tuple[int, int]:
         """(H, W) of the frames the model was trained on (see the module docstring for where it comes from)."""
-        return self.checkpoint.frame_size
+        return self.trained.frame_size
 
     @property
     def frame_size_source(self) -> str:
-        return self.checkpoint.frame_size_source
+        return self.trained.frame_size_source
 
     @property
     def force_min(self) -> np.ndarray:
@@ -403,13 +184,13 @@ class Predictor:
 
     @property
     def method(self) -> str:
-        return self.checkpoint.spec.name
+        return self.trained.spec.name
 
     def describe(self) -> dict:
-        return {"method": self.method, "kind": self.checkpoint.kind, "input_size": self.input_size,
+        return {"method": self.method, "kind": self.trained.kind, "input_size": self.input_size,
                 "frame_size": list(self.frame_size), "frame_size_source": self.frame_size_source,
                 "channels": CHANNELS, "force_min": self.force_min.tolist(), "force_max": self.force_max.tolist(),
-                "depth_head": self.has_depth, "background_stats": self.checkpoint.background_stats}
+                "depth_head": self.has_depth, "background_stats": self.trained.background_stats}
 
     # -- inputs ----------------------------------------------------------------------------------------
     def _check(self, images, bgr: bool, what: str) -> np.ndarray:
@@ -455,7 +236,7 @@ class Predictor:
         if bg.ndim != 3:
             raise ValueError(f"background must be one frame (H, W, 3), got shape {bg.shape} (average several "
                              f"frames with np.mean(frames, 0).round().astype(np.uint8))")
-        self.background_issues = background_check(bg, self.checkpoint.background_stats)
+        self.background_issues = background_check(bg, self.trained.background_stats)
         for msg in self.background_issues:
             warnings.warn(msg, BackgroundWarning, stacklevel=2)
         self.background = bg
@@ -540,5 +321,5 @@ class Predictor:
 
 def load(checkpoint_dir, which: str = "best", frame_size=None, strict_size: bool = True,
          range_margin: float = 0.05) -> Predictor:
-    """A Predictor for any folder `read_checkpoint` reads. which: "best" or "latest" (training runs)."""
-    return Predictor(read_checkpoint(checkpoint_dir, which, frame_size), strict_size, range_margin)
+    """A Predictor for any folder `ffjax.store.load` reads. which: "best" or "latest" (training runs)."""
+    return Predictor(store.load(checkpoint_dir, which, frame_size), strict_size, range_margin)

@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 
 from ffjax import inference, live_filters
-from ffjax.files import folder_lock
+from ffjax.files import check_output, folder_lock
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
@@ -458,6 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     a = build_parser().parse_args(argv)
+    if a.out:  # recordings already there are kept aside, never replaced; but never inside what is read
+        check_output(a.out, reads=[a.checkpoint, a.images], force=True)
     fs = tuple(int(v) for v in a.frame_size.lower().split("x")) if a.frame_size else None
     pred = inference.load(a.checkpoint, a.which, frame_size=fs)
     smoother = live_filters.parse(a.smooth)
@@ -477,7 +479,7 @@ def main(argv=None) -> int:
         frames, warmup, bg_frames = image_frames(a.images, a.fps or 25.0, excl), 0, 1
     warmup = warmup if a.warmup is None else a.warmup
     bg_frames = max(1, bg_frames if a.bg_frames is None else a.bg_frames)
-    print(f"ffjax.live: {pred.method} ({pred.checkpoint.kind}), frames {pred.frame_size[0]}x{pred.frame_size[1]} "
+    print(f"ffjax.live: {pred.method} ({pred.trained.kind}), frames {pred.frame_size[0]}x{pred.frame_size[1]} "
           f"RGB, training force range {_fmt(pred.force_min)}..{_fmt(pred.force_max)} N"
           + (f", filter {smoother!r}" if smoother else ""), flush=True)
     summary = run(pred, frames, out=a.out, headless=a.headless, smoother=smoother, warmup=warmup,

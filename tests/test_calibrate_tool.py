@@ -107,7 +107,7 @@ def test_calibrate_cli_improves_and_writes_a_loadable_checkpoint(run_dir, record
     assert rep["fit_after"]["nl1"] < 0.9 * rep["fit_before"]["nl1"], rep
     assert np.isfinite(rep["holdout_after"]["nl1"]) and np.isfinite(rep["holdout_before"]["nl1"])
     pred = inference.load(out)
-    assert pred.checkpoint.kind == "bundle" and pred.frame_size == tuple(b["image"].shape[1:3])
+    assert pred.trained.kind == "bundle" and pred.frame_size == tuple(b["image"].shape[1:3])
     pred.set_background(b["background"])
     hold = tool.split_indices(40, 0.25, 0)[1]
     forces = np.concatenate([pred.predict(b["image"][i]) for i in hold])  # batch 1: compiled already
@@ -118,7 +118,7 @@ def test_calibrate_cli_improves_and_writes_a_loadable_checkpoint(run_dir, record
                       "--steps", "2", "--layers", "regressor", "--lr", "3e-3"]) == 0  # compiled step reused
     assert tool.main(argv) == 2
     assert tool.main(["--checkpoint", str(run_dir), "--data", str(path), "--out", str(run_dir / "x")]) == 2
-    assert "must be a new folder" in capsys.readouterr().err
+    assert f"--out {run_dir / 'x'} is inside {run_dir}, which this command reads" in capsys.readouterr().err
     # a second calibration into a folder another one is writing stops, naming the holder
     from ffjax.files import folder_lock
 

@@ -10,10 +10,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import configs
 from ffjax import convert, models, registry
 from ffjax.convert import __main__ as cli
 from ffjax.convert import from_dinov2, from_release, mapping, reader
 from ffjax.models import vit
+from ffjax.store import converted
 
 FIX = Path(__file__).parent / "fixtures"
 TOL = 1e-5  # float32; measured max abs differences are <= 2e-6 (see "Parity" in docs/models.md)
@@ -135,7 +137,8 @@ def test_release_checkpoint_parity_through_models_build():
         cfg, variables = convert.feelanyforce(FIX / "feelanyforce_tiny.pth.tar", heads=2, depth_channel=channel)
         assert cfg["decoder"] == {"kind": "paper", "channels": (16, 16, 8, 8)}
         assert cfg["regressor"]["widths"] == (32, 16, 16, 8) and cfg["vit"]["pos_grid"] == 5
-        out = models.build(cfg, registry.get("dino_rd"), 32).apply(variables, jnp.asarray(ref["x"]))
+        model_cfg = converted.model_config(configs.get("paper")["model"], cfg, "feelanyforce")
+        out = models.build(model_cfg, registry.get("dino_rd"), 32).apply(variables, jnp.asarray(ref["x"]))
         _close(out["depth"], ref["depth"][:, channel])
     _close(out["feature"], ref["feature"])
     _close(out["force"], ref["force"])
@@ -191,7 +194,7 @@ def test_cli_writes_loadable_output(tmp_path, capsys):
     ref_cfg, ref_vars = convert.feelanyforce(FIX / "feelanyforce_tiny.pth.tar", heads=2)
     assert cfg == ref_cfg
     np.testing.assert_array_equal(variables["params"]["decoder"]["fc"]["v"], ref_vars["params"]["decoder"]["fc"]["v"])
-    assert convert.store.read_meta(out)["input_size"] == 32
+    assert converted.read_meta(out)["input_size"] == 32
 
     res = tmp_path / "resnet"
     cli.main(["resnet18", str(FIX / "resnet18_tiny.safetensors"), "--out", str(res)])
@@ -210,7 +213,8 @@ def test_release_parity_paper_scale():
     ref = {k: v.astype(np.float32) for k, v in np.load(root / "ref.npz").items()}
     cfg, variables = convert.feelanyforce(root / "checkpoint_v1.pth.tar")
     assert cfg["vit"]["heads"] == 12 and cfg["vit"]["pos_grid"] == 37
-    out = models.build(cfg, registry.get("dino_rd"), 224).apply(variables, jnp.asarray(ref["x"]))
+    model_cfg = converted.model_config(configs.get("paper")["model"], cfg, "feelanyforce")
+    out = models.build(model_cfg, registry.get("dino_rd"), 224).apply(variables, jnp.asarray(ref["x"]))
     _close(out["feature"], ref["feature"])
     _close(out["force"], ref["force"])
     _close(out["depth"], ref["depth"][:, 0])

@@ -39,7 +39,7 @@ def test_export_cli_matches_predictor_and_runs_without_ffjax(setup, tmp_path):
     pred, b = setup
     want = pred.predict(b["image"])
     out = tmp_path / "f.jaxexport"
-    assert export.main(["--checkpoint", pred.checkpoint.path, "--out", str(out), "--batch", "0"]) == 0
+    assert export.main(["--checkpoint", pred.trained.path, "--out", str(out), "--batch", "0"]) == 0
     info = json.loads((tmp_path / "f.jaxexport.json").read_text())
     assert info["frame_size"] == list(pred.frame_size) and info["channels"] == "RGB" and info["batch"] is None
     fn = export.load(out)
@@ -91,10 +91,10 @@ def test_nonfinite_forces_from_an_export_are_flagged(setup, tmp_path):
     import jax
 
     pred, b = setup
-    variables = jax.tree.map(np.array, pred.checkpoint.variables)
+    variables = jax.tree.map(np.array, pred.trained.variables)
     leaves = jax.tree_util.tree_leaves(variables["params"]["regressor"])
     [k for k in leaves if k.ndim == 2][-1][0, 0] = np.nan
-    bad = inference.Predictor(dataclasses.replace(pred.checkpoint, variables=variables))
+    bad = inference.Predictor(dataclasses.replace(pred.trained, variables=variables))
     fn = export.load(export.save(bad, tmp_path / "nan.jaxexport", batch=3))
     with pytest.warns(inference.NonFiniteWarning, match="nan.jaxexport"):
         forces = fn(b["image"], b["background"])

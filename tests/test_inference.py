@@ -9,7 +9,7 @@ import _smoke_run
 import numpy as np
 import pytest
 
-from ffjax import data, inference, train
+from ffjax import data, inference, store
 
 FIXTURES = Path(__file__).parent / "fixtures"
 
@@ -30,7 +30,8 @@ def batch():
 
 
 def test_predict_matches_training_path_and_compiles_once_per_shape(run_dir, pred, batch):
-    cfg, spec, stats, variables = train.load_checkpoint(run_dir)
+    loaded = store.load(run_dir)
+    cfg, stats, variables = loaded.cfg, loaded.stats, loaded.variables
     pred.set_background(batch["background"])
     forces = pred.predict(batch["image"])
     assert forces.shape == (4, 3) and forces.dtype == np.float32
@@ -107,20 +108,22 @@ def test_predict_depth_in_mm(pred, batch):
 
 
 def test_bundle_round_trip_and_no_depth_head(run_dir, batch, tmp_path):
-    ckpt = inference.read_checkpoint(run_dir)
-    inference.save_bundle(tmp_path / "b", ckpt)
+    ckpt = store.load(run_dir)
+    store.save_bundle(tmp_path / "b", ckpt)
     a, b = inference.load(run_dir), inference.load(tmp_path / "b")
-    assert b.checkpoint.kind == "bundle" and b.frame_size == a.frame_size and b.frame_size_source == "model.json"
+    assert b.trained.kind == "bundle" and b.frame_size == a.frame_size and b.frame_size_source == "model.json"
     for p in (a, b):
         p.set_background(batch["background"])
     np.testing.assert_array_equal(a.predict(batch["image"]), b.predict(batch["image"]))
     # a method without a depth head: same backbone and regressor, decoder dropped
+    import dataclasses
+
     from ffjax import registry
 
     params = {k: v for k, v in ckpt.variables["params"].items() if k != "decoder"}
-    ckpt.spec = registry.get("dino_r")
+    ckpt = dataclasses.replace(ckpt, spec=registry.get("dino_r"))
     # the regressor's feature normalization keeps its statistics in batch_stats: they travel with the params
-    inference.save_bundle(tmp_path / "r", ckpt, {"params": params, "batch_stats": ckpt.variables["batch_stats"]})
+    store.save_bundle(tmp_path / "r", ckpt, {"params": params, "batch_stats": ckpt.variables["batch_stats"]})
     r = inference.load(tmp_path / "r")
     r.set_background(batch["background"])
     np.testing.assert_allclose(r.predict(batch["image"]), a.predict(batch["image"]), rtol=1e-5, atol=1e-5)
@@ -135,8 +138,8 @@ def test_converted_release_folder(tmp_path):
     assert convert_cli.main(["feelanyforce", str(FIXTURES / "feelanyforce_tiny.pth.tar"), "--out", str(out),
                              "--heads", "2"]) == 0
     p = inference.load(out)
-    assert p.checkpoint.kind == "converted" and p.frame_size == (240, 320) and p.method == "dino_rd"
-    np.testing.assert_allclose(p.stats.mean, inference.RELEASE_STATS["mean"])
+    assert p.trained.kind == "converted" and p.frame_size == (240, 320) and p.method == "dino_rd"
+    np.testing.assert_allclose(p.stats.mean, store.RELEASE_STATS["mean"])
     rng = np.random.default_rng(0)
     bg = rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)
     img = rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)

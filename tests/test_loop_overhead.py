@@ -10,7 +10,7 @@ from _tiny_data import write_tiny_dataset
 import configs
 from ffjax import data as fdata
 from ffjax import train
-from ffjax.train import checkpoint as ckpt_lib
+from ffjax.store import checkpoints as ckpt_lib
 from ffjax.train import loop as loop_lib
 from ffjax.train import step as step_lib
 

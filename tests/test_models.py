@@ -117,7 +117,8 @@ def test_decoders_output_full_resolution(smoke, kind, size):
 def test_resnet_batch_stats(smoke):
     cfg_model, s = smoke
     # two stages keep the compile short (each conv shape costs ~1 s to compile here); names as torchvision
-    model = models.build_backbone({**cfg_model, "resnet": {"widths": (4, 8), "blocks": (1, 1)}}, "resnet", s)
+    resnet = {**cfg_model["resnet"], "widths": (4, 8), "blocks": (1, 1), "stem": "imagenet"}
+    model = models.build_backbone({**cfg_model, "resnet": resnet}, "resnet", s)
     images = jax.random.normal(KEY, (2, s, s, 3)) * 2 + 1
     variables, (out, upd) = _init_apply(model, images, train=True, mutable=["batch_stats"])
     # eval mode: running stats, nothing mutable needed
@@ -141,7 +142,7 @@ def test_resnet_batch_stats(smoke):
 def test_paper_scale_counts():
     """ViT-B/14 at 224 with the release's heads: ~86.6M backbone, ~77.3M in the decoder's Linear."""
     cfg = configs.get("paper")
-    cfg_model = {**cfg["model"], "vit": vit.vit_config("b14")}
+    cfg_model = {**cfg["model"], "vit": {**cfg["model"]["vit"], **vit.vit_config("b14")}}
     s = cfg["data"]["input_size"]
     model = models.build(cfg_model, registry.get("dino_rd"), s)
     variables, out = _shapes(model, jnp.zeros((1, s, s, 3)))

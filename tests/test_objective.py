@@ -21,7 +21,7 @@ import pytest
 from _tiny_data import write_tiny_dataset
 
 import configs
-from ffjax import registry, train
+from ffjax import registry, store, train
 from ffjax.registry import Method
 from ffjax.train import loop as loop_lib
 from ffjax.train import objective
@@ -98,17 +98,19 @@ def variant_run(tiny_data, tmp_path_factory):
 
 def test_a_sweep_variant_loads_in_a_fresh_process(variant_run):
     variant, tmp_path = variant_run
-    _, spec, _, variables = train.load_checkpoint(tmp_path)
+    loaded = store.load(tmp_path)
+    spec, variables = loaded.spec, loaded.variables
     assert spec == variant
 
     code = textwrap.dedent(f"""
         import dataclasses, json
         import jax, numpy as np
-        from ffjax import inference, registry, train
+        from ffjax import inference, registry, store
         assert {variant.name!r} not in registry.names()
-        cfg, spec, stats, variables = train.load_checkpoint({str(tmp_path)!r})
+        loaded = store.load({str(tmp_path)!r})
+        spec, variables = loaded.spec, loaded.variables
         model = inference.load({str(tmp_path)!r})
-        print(json.dumps({{"spec": dataclasses.asdict(spec), "predictor": model.checkpoint.spec.name,
+        print(json.dumps({{"spec": dataclasses.asdict(spec), "predictor": model.trained.spec.name,
                           "sum": float(sum(np.abs(x).sum() for x in jax.tree.leaves(variables)))}}))
     """)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
@@ -125,8 +127,8 @@ def test_an_old_model_json_without_the_spec_falls_back_to_the_registry(variant_r
     shutil.copytree(variant_run[1], tmp_path / "run")
     path = tmp_path / "run" / "model.json"
     info = json.loads(path.read_text())
-    del info["spec"]
+    del info["spec"], info["sha256"]  # written before model.json recorded the spec (and its digest)
     info["method"] = "dino_rd"
     path.write_text(json.dumps(info))
-    assert train.read_model(tmp_path / "run").spec == registry.get("dino_rd")
-    assert train.load_checkpoint(tmp_path / "run")[1] == registry.get("dino_rd")
+    assert store.describe(tmp_path / "run").spec == registry.get("dino_rd")
+    assert store.load(tmp_path / "run").spec == registry.get("dino_rd")

@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 
 import configs
-from configs import base
 from ffjax import models, registry, sim
 from ffjax.sim import dataset, sensors
 
@@ -109,10 +108,10 @@ def test_existing_data_folders_stay_valid(preset):
     then are reused, not refused as written with another config."""
     cfg = configs.get(preset)
     g = dataset.gen_config(cfg)
-    assert g == dataset.gen_config(_without_new_keys(cfg))
-    assert set(g["data"]) == set(dataset.GEN_KEYS) | {"fz_min", "tilt_max_deg", "shear_noise"}
-    assert [s.sensor for s in dataset.split_specs(cfg)] == [s.sensor for s in dataset.split_specs(
-        _without_new_keys(cfg))]
+    old = configs.upgrade(_without_new_keys(cfg))  # how a config saved before the keys is read
+    assert g == dataset.gen_config(old)
+    assert set(g["data"]) == set(dataset.GEN_KEYS)
+    assert [s.sensor for s in dataset.split_specs(cfg)] == [s.sensor for s in dataset.split_specs(old)]
 
 
 def test_another_train_sensor_is_another_dataset(tmp_path):
@@ -126,16 +125,21 @@ def test_another_train_sensor_is_another_dataset(tmp_path):
         dataset._prepare(tmp_path, dataset.gen_config(cfg), force=False)
 
 
-def test_code_defaults_are_the_base_defaults():
-    """Code that reads a key an old config may lack falls back to configs/base.py's default."""
-    d = base.CONFIG["data"]
-    assert dataset.BEFORE_KEYS == {k: d[k] for k in dataset.BEFORE_KEYS} and dataset.TRAIN_SENSOR == d["train_sensor"]
-    m = base.CONFIG["model"]
-    vit = {k: v for k, v in m["vit"].items() if k != "interpolate_offset"}
-    assert models.vit.from_config(vit) == models.vit.from_config(m["vit"])
-    dec = {**m["decoder"], "kind": "paper"}
-    assert models.decoder_from_config({k: v for k, v in dec.items() if k != "fast"}, 32) == \
-        models.decoder_from_config(dec, 32)
+def test_old_configs_are_upgraded_in_one_place():
+    """A config saved before a key existed (an old model.json) is read through configs.upgrade: the keys it lacks
+    get the values the code used then, the keys it has stay; nothing else falls back to a default of its own."""
+    cfg = configs.get("smoke")
+    old = copy.deepcopy(_without_new_keys(cfg))
+    del old["model"]["vit"]["interpolate_offset"], old["model"]["decoder"]["fast"]
+    del old["train"]["schedule"], old["data"]["depth_eps"], old["pretrain"]
+    up = configs.upgrade(old)
+    assert up["data"]["train_sensor"] == "mini-1-gel1" and up["model"]["vit"]["interpolate_offset"] == 0.1
+    assert up["train"]["schedule"] == "constant" and up["data"]["depth_eps"] == 0.0  # what the code did then
+    assert up["pretrain"]["steps"] == 100 and up["model"]["decoder"]["fast"] is True
+    assert {k: v for k, v in up["data"].items() if k != "depth_eps"} == {k: v for k, v in cfg["data"].items()
+                                                                         if k != "depth_eps"}
+    assert configs.upgrade(cfg) == cfg  # a full config is left as it is
+    assert configs.validate(up) is up
 
 
 def test_caches_ignore_new_keys_at_their_old_values():

@@ -8,9 +8,9 @@ import pytest
 from _tiny_data import write_tiny_dataset
 
 import configs
-from ffjax import train
-from ffjax.train import checkpoint as ckpt_lib
-from ffjax.train import packed
+from ffjax import store, train
+from ffjax.store import checkpoints as ckpt_lib
+from ffjax.store import packed
 
 TREE = {"params": {"a": {"kernel": jnp.arange(6.0).reshape(2, 3)}, "b": jnp.ones(4)},
         "batch_stats": {"bn": {"mean": jnp.full((2,), 0.5)}},
@@ -50,11 +50,11 @@ def test_a_run_saved_before_packing_resumes_and_loads(tmp_path, monkeypatch):
         train.train(cfg, "dino_rd", data, tmp_path / "old", progress=False, max_steps=2)
     step = next(p for p in (tmp_path / "old" / "checkpoints").iterdir() if p.name.isdigit())
     assert (step / ckpt_lib.STATE).is_dir() and not (step / ckpt_lib.PACKED).exists()
-    *_, variables = train.load_checkpoint(tmp_path / "old", "latest")
+    variables = store.load(tmp_path / "old", "latest").variables
     assert set(variables) >= {"params"}
     done = train.train(cfg, "dino_rd", data, tmp_path / "old", resume=True, progress=False)
     assert _leaves_equal(done["state"].arrays(), whole["state"].arrays())
     newest = max(int(p.name) for p in (tmp_path / "old" / "checkpoints").iterdir() if p.name.isdigit())
     assert (tmp_path / "old" / "checkpoints" / str(newest) / ckpt_lib.PACKED).is_dir()
-    *_, latest = train.load_checkpoint(tmp_path / "whole", "latest")
+    latest = store.load(tmp_path / "whole", "latest").variables
     assert _leaves_equal(latest["params"], whole["state"].params)

@@ -9,7 +9,7 @@ import pytest
 from _tiny_data import write_tiny_dataset
 
 import configs
-from ffjax import train
+from ffjax import store, train
 
 METHOD = "dino_rd"  # the same smoke model and optimizer as test_train: one compiled step for both files
 
@@ -45,12 +45,13 @@ def test_run_folder_is_self_describing(uninterrupted):
     rows = [json.loads(r) for r in open(f"{run}/train_log.jsonl")]
     assert [r["step"] for r in rows if r["kind"] == "train"] == list(range(1, 13))
     assert len(open(f"{run}/epochs.csv").read().splitlines()) == 1 + 3
-    cfg_l, spec, stats, variables = train.load_checkpoint(run, which="latest")
+    loaded = store.load(run, which="latest")
+    cfg_l, spec, stats, variables = loaded.cfg, loaded.spec, loaded.stats, loaded.variables
     assert spec.name == METHOD and cfg_l["model"]["vit"]["dim"] == 32
     assert stats.force_max == tuple(info["stats"]["force_max"])
     for a, b in zip(_leaves(variables["params"]), _leaves(uninterrupted["state"].params)):
         np.testing.assert_array_equal(a, b)
-    _, _, _, best = train.load_checkpoint(run, which="best")
+    best = store.load(run, which="best").variables
     assert jax.tree.structure(best["params"]) == jax.tree.structure(variables["params"])
 
 
@@ -112,7 +113,7 @@ def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(cfg, tiny_data, tm
 
     with pytest.raises(train.NonFiniteLossError, match=r"step 8 .*Last good checkpoint: step 5"):
         train.train(cfg, METHOD, tiny_data, tmp_path, progress=False, callback=poison_at_7)
-    _, _, _, variables = train.load_checkpoint(tmp_path, which="latest")
+    variables = store.load(tmp_path, which="latest").variables
     assert all(np.isfinite(x).all() for x in _leaves(variables["params"]))
-    _, _, _, best = train.load_checkpoint(tmp_path, which="best")  # epoch 1 (step 4)
+    best = store.load(tmp_path, which="best").variables  # epoch 1 (step 4)
     assert all(np.isfinite(x).all() for x in _leaves(best["params"]))

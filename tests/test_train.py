@@ -108,7 +108,8 @@ def test_labels_for_calibration_modes(cfg):
 
 
 def test_warmup_cosine_schedule_works():
-    tc = {"lr_backbone": 1e-4, "lr_heads": 5e-4, "schedule": "warmup_cosine", "warmup_steps": 10}
+    tc = {**configs.get("smoke")["train"], "lr_backbone": 1e-4, "lr_heads": 5e-4, "schedule": "warmup_cosine",
+          "warmup_steps": 10}
     lr = train.learning_rate(5e-4, tc, total_steps=100)
     assert float(lr(0)) == 0.0 and np.isclose(float(lr(10)), 5e-4) and float(lr(100)) < 1e-9
     assert 0 < float(lr(55)) < 5e-4
@@ -135,7 +136,7 @@ def test_init_backbone_replaces_and_shape_checks(cfg):
 
 
 def test_optimizer_groups_use_their_learning_rates():
-    tc = {"lr_backbone": 1.0, "lr_heads": 2.0, "schedule": "constant"}
+    tc = {**configs.get("smoke")["train"], "lr_backbone": 1.0, "lr_heads": 2.0, "schedule": "constant"}
     labels = {"backbone": "backbone", "regressor": "heads", "decoder": "frozen"}
     opt = train.make_optimizer(tc, labels)
     p = {k: np.ones(3, np.float32) for k in labels}

@@ -58,11 +58,11 @@ def arch_of(cfg: dict, method: str, size: int) -> dict:
     return {
         "backbone": spec.backbone,
         "vit": {k: m["vit"][k] for k in ("dim", "depth", "heads", "patch", "mlp_ratio", "layerscale")}
-        | {"pos_grid": m["vit"].get("pos_grid")},
+        | {"pos_grid": m["vit"]["pos_grid"]},
         "resnet": {"widths": list(m["resnet"]["widths"]), "blocks": list(m["resnet"]["blocks"]),
-                   "stem": m["resnet"].get("stem", "imagenet")},
+                   "stem": m["resnet"]["stem"]},
         "regressor": list(m["regressor"]["widths"]),
-        "feature_norm": bool(m["regressor"].get("feature_norm", False)),
+        "feature_norm": bool(m["regressor"]["feature_norm"]),
         "decoder": ({"kind": m["decoder"]["kind"], "channels": list(m["decoder"]["channels"])}
                     if spec.depth_head else None),
         "input_size": size,

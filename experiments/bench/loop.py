@@ -176,7 +176,7 @@ def loop_efficiency(cfg: dict, method: str, source, size: int, batch: int, n_tra
     assert summary["steps"] - warmup == steps
     eval_s = summary["eval_time_s"]
     return {"method": method, "batch": batch, "input_size": size, "steps": steps, "epochs": epochs,
-            "steps_per_epoch": summary["steps_per_epoch"], "val_every": cfg["train"].get("val_every", 1),
+            "steps_per_epoch": summary["steps_per_epoch"], "val_every": cfg["train"]["val_every"],
             "ckpt_every": cfg["train"]["ckpt_every"], "n_train": n_train, "n_val": n_val,
             "loop_ms": loop_s / steps * 1e3, "pure_ms": pure_s / steps * 1e3, "eval_s": eval_s,
             "startup_s": float(clock["t0"][0] - t_call), "efficiency": float(pure_s / loop_s),

@@ -154,12 +154,11 @@ def ridge(xtr, ytr, xva, yva, alphas=(1e-2, 1e-1, 1, 10, 100, 1e3, 1e4)) -> dict
 
 def probes(data_root: Path, runs: list[Path]) -> dict:
     from experiments import common
-    from ffjax import calibrate, data, models
+    from ffjax import calibrate, data, store
     from ffjax.sim import dataset
-    from ffjax.train import load_checkpoint
 
     if runs:  # the runs' own input statistics and size (the probes standardize anyway)
-        _, _, stats, _ = load_checkpoint(runs[0], "best")
+        stats = store.describe(runs[0]).stats
     else:
         cfg = common.read_json(data_root / "config.json") or {}
         stats = data.Stats(mean=(0.0,) * 3, std=(1.0,) * 3, depth_min=0.0, depth_max=1.0, force_min=(0.0,) * 3,
@@ -175,8 +174,8 @@ def probes(data_root: Path, runs: list[Path]) -> dict:
     for r in (8, 16, 32):
         out["pixels"][f"{r}x{r}"] = ridge(down(tr["image"], r), ytr, down(va["image"], r), yva)
     for run in runs:
-        cfg, spec, _, variables = load_checkpoint(run, "best")
-        model = models.build(cfg["model"], spec, size)
+        trained = store.load(run)
+        cfg, spec, variables, model = trained.cfg, trained.spec, trained.variables, trained.build()
         ftr = calibrate.features(model, variables, tr["image"])
         fva = calibrate.features(model, variables, va["image"])
         head = calibrate.predict_from_features(cfg["model"]["regressor"], variables["params"]["regressor"], fva,

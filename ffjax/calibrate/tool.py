@@ -24,18 +24,17 @@ ffjax.export accept; its expected frame size is the calibration frames'. The che
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from pathlib import Path
 
 import jax
 import numpy as np
 
-from ffjax import cli, inference, metrics
+from ffjax import cli, metrics, store
 from ffjax import data as fdata
 from ffjax.calibrate import core
 from ffjax.data.sources import write_rgb
-from ffjax.files import LOCK_NAME, folder_lock
+from ffjax.files import atomic_write_json, check_output, folder_lock
 
 
 def split_indices(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -45,13 +44,6 @@ def split_indices(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.nda
     perm = np.random.default_rng(seed).permutation(n)
     k = 0 if holdout == 0 or n < 2 else int(np.clip(round(holdout * n), 1, n - 1))
     return np.sort(perm[k:]), np.sort(perm[:k])
-
-
-def _check_out(out: Path, checkpoint: Path, overwrite: bool) -> None:
-    if out.resolve() == checkpoint.resolve() or checkpoint.resolve() in out.resolve().parents:
-        raise ValueError(f"--out {out} must be a new folder outside the checkpoint {checkpoint}")
-    if out.exists() and any(p.name != LOCK_NAME for p in out.iterdir()) and not overwrite:
-        raise FileExistsError(f"{out} exists and is not empty: choose a new --out (or --overwrite)")
 
 
 def _check_finite(regressor, steps: int, lr: float, out: Path) -> None:
@@ -64,22 +56,23 @@ def _check_finite(regressor, steps: int, lr: float, out: Path) -> None:
 
 def calibrate(checkpoint, data, out, layers: str = "last", steps: int | None = None, lr: float | None = None,
               holdout: float | None = None, seed: int = 0, background=None, batch_size: int | None = None,
-              which: str = "best", overwrite: bool = False, log=print) -> dict:
+              which: str = "best", force: bool = False, log=print) -> dict:
     """Fine-tune, evaluate before/after on a held-out part, write a new checkpoint folder; returns the report."""
     checkpoint, out = Path(checkpoint), Path(out)
     if layers not in core.LAYERS:
         raise ValueError(f"--layers must be one of {core.LAYERS}, got {layers!r}")
-    _check_out(out, checkpoint, overwrite)
+    reads = [checkpoint, data, background if isinstance(background, (str, Path)) else None]
+    check_output(out, reads, force)
     # held from the start: two calibrations into one --out must not mix their files; checked again inside,
     # since another one may have finished there between the first check and the lock
     with folder_lock(out, "calibration"):
-        _check_out(out, checkpoint, overwrite)
-        ckpt = inference.read_checkpoint(checkpoint, which)
-        cc = ckpt.cfg.get("calibrate", {})
-        steps = int(cc.get("steps", 200) if steps is None else steps)
-        lr = float(cc.get("lr", 1e-4) if lr is None else lr)
-        holdout = float(cc.get("holdout", 0.2) if holdout is None else holdout)
-        batch_size = int(cc.get("batch_size", 32) if batch_size is None else batch_size)
+        check_output(out, reads, force)
+        ckpt = store.load(checkpoint, which)
+        cc = ckpt.cfg["calibrate"]
+        steps = int(cc["steps"] if steps is None else steps)
+        lr = float(cc["lr"] if lr is None else lr)
+        holdout = float(cc["holdout"] if holdout is None else holdout)
+        batch_size = int(cc["batch_size"] if batch_size is None else batch_size)
 
         source = fdata.open_split(data, background=background)
         if len(source) == 0:
@@ -92,7 +85,7 @@ def calibrate(checkpoint, data, out, layers: str = "last", steps: int | None = N
                 + ("" if layers == "regressor" else ". For a different sensor type use --layers regressor"))
         arrays = fdata.load_arrays(source, ckpt.stats, ckpt.input_size)
         y = arrays["force"]
-        feats = core.features(ckpt.build_model(), ckpt.variables, arrays["image"], batch_size=min(64, len(y)))
+        feats = core.features(ckpt.build(), ckpt.variables, arrays["image"], batch_size=min(64, len(y)))
         fit, hold = split_indices(len(y), holdout, seed)
         if len(hold) == 0:
             log("warning: no held-out frames (holdout 0 or a single frame): errors below are on the fitting set")
@@ -123,10 +116,11 @@ def calibrate(checkpoint, data, out, layers: str = "last", steps: int | None = N
             "calibration_force_range": {"min": y.min(0).tolist(), "max": y.max(0).tolist()},
         }
         variables = core.with_regressor(ckpt.variables, new_reg)
-        inference.save_bundle(out, ckpt, variables, frame_size=frame, calibration=report)
-        (out / "calibration.json").write_text(json.dumps(report, indent=2) + "\n")
+        atomic_write_json(out / "calibration.json", report, indent=2)
         bg = getattr(source, "background", None)
         write_rgb(out / "background.png", bg if bg is not None else first["background"])
+        # model.json last: a folder a kill left without it is no bundle, never one with the old weights
+        store.save_bundle(out, ckpt, variables, frame_size=frame, calibration=report)
     log(format_report(report))
     log(f"wrote {out} (python -m ffjax.live --checkpoint {out} ...)")
     return report
@@ -185,7 +179,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--background", default=None, help="no-contact frame, if not background.png beside the CSV")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--which", default="best", choices=("best", "latest"))
-    p.add_argument("--overwrite", action="store_true", help="allow a non-empty --out")
+    p.add_argument("--force", "--overwrite", dest="force", action="store_true",
+                   help="replace an existing --out (it may never be inside --checkpoint or --data)")
     return p
 
 
@@ -193,7 +188,7 @@ def main(argv=None) -> int:
     a = build_parser().parse_args(argv)
     try:
         calibrate(a.checkpoint, a.data, a.out, a.layers, a.steps, a.lr, a.holdout, a.seed, a.background,
-                  a.batch_size, a.which, a.overwrite)
+                  a.batch_size, a.which, a.force)
     except (ValueError, FileExistsError, FileNotFoundError) as e:
         return cli.fail(e, cli.USAGE)
     return 0

@@ -12,12 +12,14 @@ paths; every tensor is shape-checked against the Flax model and all problems are
 ConversionError.
 """
 
+from ffjax.errors import UnsafePickleError
+from ffjax.store.converted import load, load_backbone, save
+
 from .from_dinov2 import dinov2
 from .from_release import feelanyforce
 from .from_torchvision import resnet18
 from .mapping import ConversionError
-from .reader import UnsafePickleError, read_state_dict
-from .store import load, load_backbone, save
+from .reader import read_state_dict
 
 __all__ = [
     "ConversionError",

@@ -1,6 +1,7 @@
 """python -m ffjax.convert {dinov2,resnet18,feelanyforce} IN --out DIR [--heads N] [--depth-channel C]
 
-Writes DIR/variables.msgpack and DIR/convert.json (see ffjax.convert.store); prints a summary.
+Writes DIR/variables.msgpack and DIR/convert.json (see ffjax.store.converted), whole: a kill leaves the old folder
+or none; an existing DIR is replaced only with --force, and DIR may not hold IN. Prints a summary.
 """
 
 from __future__ import annotations
@@ -12,8 +13,10 @@ import jax
 import numpy as np
 
 from ffjax import cli
+from ffjax.files import check_output
+from ffjax.store import converted
 
-from . import from_dinov2, from_release, from_torchvision, mapping, reader, store
+from . import from_dinov2, from_release, from_torchvision, mapping, reader
 
 
 def _count(tree) -> int:
@@ -35,10 +38,12 @@ def main(argv=None) -> int:
         help="feelanyforce: which of the release decoder's 3 output channels to keep",
     )
     p.add_argument("--no-decoder", action="store_true", help="feelanyforce: drop the depth decoder")
+    p.add_argument("--force", action="store_true", help="replace an existing --out folder")
     a = p.parse_args(argv)
     try:
+        check_output(a.out, reads=[a.input], force=a.force)  # before reading: a refused --out costs nothing
         return _run(a)
-    except (mapping.ConversionError, reader.UnsafePickleError, ValueError, FileNotFoundError) as e:
+    except (mapping.ConversionError, reader.UnsafePickleError, ValueError, FileNotFoundError, FileExistsError) as e:
         return cli.fail(e, cli.USAGE)  # every mapping problem is in the message: no traceback needed
 
 
@@ -66,7 +71,7 @@ def _run(a: argparse.Namespace) -> int:
             "depth_channel": a.depth_channel,
             "notes": "release decoder has 3 output channels; depth_channel of them kept",
         }
-    out = store.save(a.out, a.kind, model_cfg, variables, a.input, **info)
+    out = converted.save(a.out, a.kind, model_cfg, variables, a.input, **info)
     groups = {k: _count(v) for k, v in variables["params"].items()}
     print(f"converted {a.input} -> {out}: " + ", ".join(f"{k} {n:,} params" for k, n in groups.items()))
     return 0

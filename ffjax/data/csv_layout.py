@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ffjax.data.sources import BACKGROUND_NAME, CSV_NAME, open_split, write_rgb
-from ffjax.files import atomic_write_text
+from ffjax.files import atomic_write_text, check_output
 
 
 def write_csv(source, out, progress: bool = True) -> Path:
@@ -59,9 +59,11 @@ def main(argv=None):
     p.add_argument("--split", required=True, help="a shard directory (or any split open_split reads)")
     p.add_argument("--out", required=True,
                    help="output folder (data.csv, tactile/, depth/, background.png)")
+    p.add_argument("--force", action="store_true", help="write into an existing --out (its files are replaced)")
     args = p.parse_args(argv)
     from ffjax import cli
 
+    check_output(args.out, reads=[args.split], force=args.force)
     src = open_split(args.split)
     path = write_csv(src, cli.check_out(p, args.out))
     print(f"wrote {path}")

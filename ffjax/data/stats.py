@@ -31,7 +31,7 @@ class Stats:
         """Statistics over `source` (the train split). Image mean/std and the depth range use up to
         `max_samples` evenly spaced records (all of them for CPU-scale splits); the force range uses all."""
         size = int(input_size or data_cfg["input_size"])
-        eps = float(data_cfg.get("depth_eps", 0.0))
+        eps = float(data_cfg["depth_eps"])
         n = len(source)
         if n == 0:
             raise ValueError(f"cannot compute statistics over an empty split ({source!r})")

@@ -86,14 +86,14 @@ class Regressor(nn.Module):
 
 
 def regressor_from_config(cfg_regressor: dict) -> Regressor:
-    """Regressor from cfg["model"]["regressor"] (widths, optional out_scale / out_shift / feature_norm)."""
+    """Regressor from cfg["model"]["regressor"]."""
 
     def vec(key):
-        v = cfg_regressor.get(key)
+        v = cfg_regressor[key]
         return None if v is None else tuple(float(a) for a in v)
 
     return Regressor(tuple(int(w) for w in cfg_regressor["widths"]), vec("out_scale"), vec("out_shift"),
-                     bool(cfg_regressor.get("feature_norm", False)))
+                     bool(cfg_regressor["feature_norm"]))
 
 
 def output_affine(force_min, force_max) -> dict:
@@ -224,10 +224,10 @@ class TokenDecoder(nn.Module):
 
 
 def decoder_from_config(cfg_decoder: dict, out_size: int) -> nn.Module:
-    kind = cfg_decoder.get("kind", "tokens")
+    kind = cfg_decoder["kind"]
     channels = tuple(cfg_decoder["channels"])
     if kind == "paper":
-        return PaperDecoder(channels, out_size, fast=cfg_decoder.get("fast", True))
+        return PaperDecoder(channels, out_size, fast=cfg_decoder["fast"])
     if kind == "tokens":
         return TokenDecoder(channels, out_size)
     raise ValueError(f"unknown decoder kind {kind!r}; choose one of {', '.join(DECODER_KINDS)}")

@@ -72,9 +72,9 @@ class ResNet(nn.Module):
 
 
 def from_config(cfg_resnet: dict) -> ResNet:
-    """Build from cfg["model"]["resnet"] (widths, blocks; optional stem)."""
+    """Build from cfg["model"]["resnet"]."""
     return ResNet(
         widths=tuple(cfg_resnet["widths"]),
         blocks=tuple(cfg_resnet["blocks"]),
-        stem=cfg_resnet.get("stem", "imagenet"),
+        stem=cfg_resnet["stem"],
     )

@@ -178,14 +178,14 @@ class ViT(nn.Module):
 
 
 def from_config(cfg_vit: dict) -> ViT:
-    """Build a ViT from cfg["model"]["vit"] (optional keys: pos_grid, interpolate_offset)."""
+    """Build a ViT from cfg["model"]["vit"]."""
     return ViT(
         dim=cfg_vit["dim"],
         depth=cfg_vit["depth"],
         heads=cfg_vit["heads"],
         patch=cfg_vit["patch"],
-        mlp_ratio=float(cfg_vit.get("mlp_ratio", 4.0)),
-        layerscale=float(cfg_vit.get("layerscale", 1e-5)),
-        pos_grid=cfg_vit.get("pos_grid"),
-        interpolate_offset=float(cfg_vit.get("interpolate_offset", 0.1)),
+        mlp_ratio=float(cfg_vit["mlp_ratio"]),
+        layerscale=float(cfg_vit["layerscale"]),
+        pos_grid=cfg_vit["pos_grid"],
+        interpolate_offset=float(cfg_vit["interpolate_offset"]),
     )

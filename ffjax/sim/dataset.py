@@ -1,6 +1,7 @@
 """Balanced presses on disk: every split the paper's tables need, as npz shards.
 
-    python -m ffjax.sim.dataset --preset quick --out DIR [--force] [--workers N] [--set data.x=y]
+    python -m ffjax.simulate --preset quick --out DIR [--force] [--workers N] [--set data.x=y]   (the CLI)
+    generate(cfg, out)                                                                    (from Python)
 
 Layout: DIR/config.json (what was asked, written first), DIR/<split>/shard_#####.npz (image uint8
 (N,H,W,3), depth float32 (N,H,W) mm, force float32 (N,3), shape (N,) str, per-sample pose and sim
@@ -23,7 +24,6 @@ unwritable DIR fails before any rendering; a full disk stops with a message, fin
 
 from __future__ import annotations
 
-import argparse
 import concurrent.futures as cf
 import dataclasses
 import functools
@@ -32,7 +32,6 @@ import json
 import multiprocessing
 import os
 import shutil
-import sys
 import time
 import warnings
 import zipfile
@@ -42,19 +41,17 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-import configs
 from ffjax.files import atomic_write, atomic_write_text, check_writable
 from ffjax.sim.sensors import MINI_NAMES, SENSOR_NAMES, get_sensor
 
 VERSION = 1
 # Generation knobs (cfg["data"]): every one decides the bytes on disk
 GEN_KEYS = ("render_size", "train_per_indenter", "val_per_indenter", "unseen_per_object",
-            "sensor_test_per_indenter", "calib_samples", "fz_max", "shear_max", "shard_size")
-# Knobs that were constants here before they were config keys, at those values (configs.BEFORE_KEYS): a config
-# without them (an older model.json) means these. fz_min, tilt_max_deg and shear_noise were always part of a
-# folder's config.json; train_sensor enters it only when it differs, so folders written before stay valid.
-BEFORE_KEYS = {k: configs.BEFORE_KEYS[f"data.{k}"] for k in ("fz_min", "tilt_max_deg", "shear_noise")}
-TRAIN_SENSOR = configs.BEFORE_KEYS["data.train_sensor"]
+            "sensor_test_per_indenter", "calib_samples", "fz_max", "shear_max", "shard_size", "fz_min",
+            "tilt_max_deg", "shear_noise")
+# config.json names the training sensor only when it is not this one, the sensor of every folder written before
+# it was a choice: those folders stay valid
+LEGACY_TRAIN_SENSOR = "mini-1-gel1"
 _SENSORS_BEFORE = tuple(f"mini-{u}-gel{g}" for u in (1, 2, 3) for g in (1, 2, 3)) + ("digit",)
 CALIB_SHAPE = "sphere_big"
 SENSOR_KEYS = SENSOR_NAMES  # every sensor gets a Table II split and a calibration split
@@ -89,7 +86,7 @@ def split_specs(cfg: dict) -> list[SplitSpec]:
     from ffjax import sim
 
     d = cfg["data"]
-    train = d.get("train_sensor", TRAIN_SENSOR)
+    train = d["train_sensor"]
     ind = tuple(sim.INDENTERS)
     table2 = tuple(s for s in ind if s != CALIB_SHAPE)
     specs = [("train", train, ind, d["train_per_indenter"]), ("val", train, ind, d["val_per_indenter"])]
@@ -102,8 +99,8 @@ def split_specs(cfg: dict) -> list[SplitSpec]:
 def gen_config(cfg: dict) -> dict:
     """What determines the bytes on disk (JSON-normalized): compared on every rerun."""
     d = cfg["data"]
-    data = {k: d[k] for k in GEN_KEYS} | {k: d.get(k, v) for k, v in BEFORE_KEYS.items()}
-    if d.get("train_sensor", TRAIN_SENSOR) != TRAIN_SENSOR:
+    data = {k: d[k] for k in GEN_KEYS}
+    if d["train_sensor"] != LEGACY_TRAIN_SENSOR:
         data["train_sensor"] = d["train_sensor"]
     if SENSOR_KEYS != _SENSORS_BEFORE:  # a sensor added (or removed) changes the splits and their seeds
         data["sensors"] = list(SENSOR_KEYS)
@@ -367,31 +364,3 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
                                "workers": workers}}
     _write_text(manifest_file, json.dumps(manifest, indent=1))
     return manifest
-
-
-def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m ffjax.sim.dataset",
-                                 description="Write every synthetic split (train/val/unseen/sensor/calib).")
-    ap.add_argument("--preset", default="quick", choices=configs.PRESETS,
-                    help="dataset size (default: quick). Measured on a 2-core CPU: smoke seconds; quick 11,300 "
-                         "presses in 4-6 min")
-    ap.add_argument("--out", required=True)
-    ap.add_argument("--force", action="store_true", help="delete a dataset made with another config")
-    ap.add_argument("--workers", type=int, default=None, help="processes (default: CPU count, max 8)")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override, e.g. "
-                    "data.train_per_indenter=100")
-    ap.add_argument("--quiet", action="store_true")
-    args = ap.parse_args(argv)
-    cfg = configs.from_cli(ap, args.preset, args.set)
-    try:
-        m = generate(cfg, args.out, force=args.force, workers=args.workers, progress=not args.quiet)
-    except (FileExistsError, OSError) as e:
-        sys.exit(f"error: {e}")
-    gen = m["generation"]
-    print(f"{args.out}: {len(m['splits'])} splits, {gen['samples']} presses "
-          f"({gen['rendered']} rendered in {gen['seconds']} s, {gen['samples_per_minute']:,}/min, "
-          f"{gen['workers']} workers)")
-
-
-if __name__ == "__main__":
-    main()

@@ -3,22 +3,15 @@
     state = train.init_state(cfg, spec, key, input_size)          # params, batch_stats, opt_state, key
     state, m = train.train_step(state, batch)                      # jitted once; m: loss, force_l1, ...
     summary = train.train(cfg, "dino_rd", "data/quick", "runs/x")  # or python -m ffjax.train
-    cfg, spec, stats, variables = train.load_checkpoint("runs/x", which="best")   # any process, any variant
-    saved = train.read_model("runs/x")                              # model.json: cfg, spec, stats, input size
+
+A run folder is read back with `ffjax.store.load("runs/x")` (any process, any variant): ffjax.store is the one
+reader of trained models in every form.
 
 The objective (the loss terms, each declared once) lives in `ffjax.train.objective`.
 
 Pretraining (self-supervised backbones) lives in `ffjax.train.pretrain`.
 """
 
-from ffjax.train.checkpoint import (
-    Checkpointer,
-    SavedModel,
-    load_checkpoint,
-    read_model,
-    read_model_json,
-    write_model_json,
-)
 from ffjax.train.loop import NonFiniteLossError, open_sources, train, validate
 from ffjax.train.state import (
     Labeler,
@@ -33,26 +26,20 @@ from ffjax.train.step import TRACE_COUNT, eval_step, make_mesh, replicate, shard
 
 __all__ = [
     "TRACE_COUNT",
-    "Checkpointer",
     "Labeler",
     "NonFiniteLossError",
-    "SavedModel",
     "TrainState",
     "abstract_state",
     "eval_step",
     "init_state",
     "learning_rate",
-    "load_checkpoint",
     "make_mesh",
     "make_optimizer",
     "open_sources",
-    "read_model",
-    "read_model_json",
     "replace_backbone",
     "replicate",
     "shard_batch",
     "train",
     "train_step",
     "validate",
-    "write_model_json",
 ]

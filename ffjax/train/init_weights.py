@@ -14,6 +14,9 @@ from __future__ import annotations
 import copy
 from pathlib import Path
 
+from ffjax import convert
+from ffjax.store import converted
+
 KINDS = ("dinov2", "resnet18", "feelanyforce", "pretrained")
 _BACKBONE = {"dinov2": "vit", "resnet18": "resnet", "feelanyforce": "vit"}
 
@@ -29,15 +32,11 @@ def parse(text: str) -> tuple[str, Path]:
 
 def _converted(kind: str, path: Path) -> tuple[dict, dict, dict]:
     """(cfg["model"] sections, variables, extra info) from a file or a convert folder."""
-    from ffjax import convert
-
     if path.is_dir():
-        from ffjax.convert import store
-
-        meta = store.read_meta(path)
+        meta = converted.read_meta(path)
         if meta["kind"] != kind:
             raise ValueError(f"{path} holds converted {meta['kind']} weights, not {kind}")
-        sections, variables = store.load(path)
+        sections, variables = converted.load(path)
         return sections, variables, meta
     if kind == "dinov2":
         vit_cfg, params = convert.dinov2(path)
@@ -63,14 +62,10 @@ def apply(cfg: dict, spec, text: str) -> tuple[dict, tuple | None, dict | None]:
     if spec.backbone != _BACKBONE[kind]:
         raise ValueError(f"--init {kind} gives a {_BACKBONE[kind]} backbone; method {spec.name} uses {spec.backbone}")
     sections, variables, info = _converted(kind, path)
-    cfg = copy.deepcopy(cfg)
-    for name, section in sections.items():
-        cfg["model"][name] = {**cfg["model"].get(name, {}), **section}
+    cfg = {**copy.deepcopy(cfg), "model": converted.model_config(cfg["model"], sections, kind)}
     if kind != "feelanyforce":
         stats = variables.get("batch_stats", {}).get("backbone", {})
         return cfg, (variables["params"]["backbone"], stats), None
-    # the release's head: no feature normalization, newtons out
-    cfg["model"]["regressor"].update(normalize_output=False, out_scale=None, out_shift=None, feature_norm=False)
     cfg["train"]["force_loss"] = "newton"  # as the release trained; per-axis weights need a normalized output
     if info.get("input_size"):
         cfg["data"]["input_size"] = int(info["input_size"])

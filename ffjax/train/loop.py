@@ -37,9 +37,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ffjax import metrics as fmetrics
+from ffjax import store
 from ffjax.errors import CheckpointError
 from ffjax.files import atomic_write_text, check_writable, folder_lock
-from ffjax.train.checkpoint import Checkpointer, read_model, write_model_json
+from ffjax.store import model_json
+from ffjax.store.checkpoints import Checkpointer
 from ffjax.train.state import init_state
 from ffjax.train.step import eval_step, feature_step, make_mesh, replicate, shard_batch, train_step
 
@@ -76,7 +78,7 @@ def with_output_affine(cfg: dict, stats) -> dict:
     from ffjax.models import output_affine
 
     rc = cfg["model"]["regressor"]
-    if not rc.get("normalize_output") or rc.get("out_scale") is not None:
+    if not rc["normalize_output"] or rc["out_scale"] is not None:
         return cfg
     cfg = {**cfg, "model": {**cfg["model"], "regressor": {**rc, **output_affine(stats.force_min, stats.force_max)}}}
     return cfg
@@ -318,7 +320,7 @@ def _open_run(cfg, spec, data, run_dir: Path, resume, init_backbone, init_variab
     from ffjax import data as fdata
 
     tc = cfg["train"]
-    if tc.get("nonfinite", "stop") not in NONFINITE_MODES:
+    if tc["nonfinite"] not in NONFINITE_MODES:
         raise ValueError(f"train.nonfinite must be one of {NONFINITE_MODES}, got {tc['nonfinite']!r}")
     input_size, bs = int(cfg["data"]["input_size"]), int(tc["batch_size"])
     train_src, val_src = open_sources(data)
@@ -334,8 +336,8 @@ def _open_run(cfg, spec, data, run_dir: Path, resume, init_backbone, init_variab
     stats = _resumed_stats(ckpt, run_dir, cfg, spec) if restoring else fdata.Stats.compute(train_src, cfg["data"])
     cfg = with_output_affine(cfg, stats)
     first = train_src[0]
-    write_model_json(run_dir, cfg, spec, stats, input_size, frame_size=first["image"].shape[:2],
-                     background_stats=fdata.stats.background_stats(first["background"]))
+    model_json.write(run_dir, model_json.info(cfg, spec, stats, input_size, first["image"].shape[:2],
+                                              fdata.stats.background_stats(first["background"])))
     total = int(tc["epochs"]) * steps_per_epoch
     mesh = make_mesh(devices)
     state = init_state(cfg, spec, jax.random.PRNGKey(int(cfg["seed"])), input_size,
@@ -363,7 +365,7 @@ def _open_run(cfg, spec, data, run_dir: Path, resume, init_backbone, init_variab
 def _resumed_stats(ckpt, run_dir: Path, cfg: dict, spec):
     """The data statistics the run was started with; refused when the folder holds another method's run."""
     try:
-        saved = read_model(run_dir)  # the reader inference and experiments use
+        saved = store.describe(run_dir)  # the reader inference and experiments use
     except CheckpointError:
         ckpt.close()
         raise
@@ -433,9 +435,9 @@ class _Run:
 
     def __post_init__(self):
         tc = self.cfg["train"]
-        self.nonfinite = tc.get("nonfinite", "stop")
-        self.ckpt_every = max(int(tc.get("ckpt_every", self.steps_per_epoch)), 1)
-        self.val_every = max(int(tc.get("val_every", 1)), 1)  # epochs; configs written before the key: every epoch
+        self.nonfinite = tc["nonfinite"]
+        self.ckpt_every = max(int(tc["ckpt_every"]), 1)
+        self.val_every = max(int(tc["val_every"]), 1)  # epochs
         self.log_every = max(1, min(25, self.steps_per_epoch))
         self.sums = [t.name for t in self.state.objective.terms if t.train_column]  # the epoch means' terms
         self.pending: list = []  # (step, device metrics) not logged yet

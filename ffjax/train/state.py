@@ -126,13 +126,13 @@ def learning_rate(base: float, cfg_train: dict, total_steps: int | None):
     tools timing or fine-tuning a step at a time) gets the warmup and then the peak rate: there is no end
     to decay towards.
     """
-    kind = cfg_train.get("schedule", "constant")
+    kind = cfg_train["schedule"]
     if kind == "constant":
         return base
     if kind == "warmup_cosine":
         if not total_steps:
-            return optax.linear_schedule(0.0, base, max(int(cfg_train.get("warmup_steps", 0)), 1))
-        warmup = min(int(cfg_train.get("warmup_steps", 0)), max(total_steps - 1, 0))
+            return optax.linear_schedule(0.0, base, max(int(cfg_train["warmup_steps"]), 1))
+        warmup = min(int(cfg_train["warmup_steps"]), max(total_steps - 1, 0))
         return optax.warmup_cosine_decay_schedule(
             init_value=0.0, peak_value=base, warmup_steps=warmup, decay_steps=max(total_steps, warmup + 1)
         )
@@ -147,13 +147,13 @@ def make_optimizer(cfg_train: dict, labels, total_steps: int | None = None) -> o
     Equal settings with a hashable `labels` return the same object, so states built twice from one
     config share train_step's compiled program (the optimizer is part of the state's static structure).
     """
-    schedule = cfg_train.get("schedule", "constant")
+    schedule = cfg_train["schedule"]
     key = (
         float(cfg_train["lr_backbone"]),
         float(cfg_train["lr_heads"]),
         schedule,
-        int(cfg_train.get("warmup_steps", 0)),
-        float(cfg_train.get("grad_clip", 0.0) or 0.0),
+        int(cfg_train["warmup_steps"]),
+        float(cfg_train["grad_clip"]),
         None if schedule == "constant" else total_steps,
     )
     try:
@@ -182,7 +182,7 @@ def _build_optimizer(cfg_train: dict, labels, total_steps: int | None) -> optax.
         "frozen": optax.set_to_zero(),
     }
     tx = optax.multi_transform(groups, labels)
-    clip = float(cfg_train.get("grad_clip", 0.0) or 0.0)
+    clip = float(cfg_train["grad_clip"])
     return optax.chain(optax.clip_by_global_norm(clip), tx) if clip > 0 else tx
 
 
@@ -254,7 +254,7 @@ def init_state(
     cfg_train = _scaled_lrs(cfg_train or cfg["train"], spec)
     tx = make_optimizer(cfg_train, labeler, total_steps)
     params = variables["params"]
-    compute_dtype = cfg_train.get("compute_dtype", "float32")  # configs written before the key: float32
+    compute_dtype = cfg_train["compute_dtype"]
     if compute_dtype not in COMPUTE_DTYPES:
         raise ValueError(f"train.compute_dtype must be one of {COMPUTE_DTYPES}, got {compute_dtype!r}")
     return TrainState(
@@ -285,14 +285,14 @@ def force_weights(cfg: dict, cfg_train: dict) -> tuple[float, float, float] | No
     (half the training range), so it needs model.regressor.normalize_output. A state built outside the
     training loop (benchmarks, tests), before the loop fills out_scale from the labels, weighs axes equally.
     """
-    kind = cfg_train.get("force_loss", "newton")
+    kind = cfg_train["force_loss"]
     if kind not in FORCE_LOSSES:
         raise ValueError(f"train.force_loss must be one of {FORCE_LOSSES}, got {kind!r}")
     if kind == "newton":
         return None
     rc = cfg["model"]["regressor"]
-    scale = rc.get("out_scale")
-    if scale is None and rc.get("normalize_output"):
+    scale = rc["out_scale"]
+    if scale is None and rc["normalize_output"]:
         return None
     if scale is None:
         raise ValueError("train.force_loss='normalized' needs the training force range: set "

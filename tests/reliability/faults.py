@@ -165,7 +165,7 @@ def _summary(name: str, loop: dict, equal: bool, how: str, extra: dict) -> dict:
 
 
 def _dataset_cmd(preset: str, folder: Path) -> list[str]:
-    cmd = [sys.executable, "-m", "ffjax.sim.dataset", "--preset", preset, "--out", str(folder), "--quiet",
+    cmd = [sys.executable, "-m", "ffjax.simulate", "--preset", preset, "--out", str(folder), "--quiet",
            "--workers", "1"]
     return cmd + [a for s in DATA_SET for a in ("--set", s)]
 
@@ -223,10 +223,10 @@ def _train_cmd(preset: str, data: Path, folder: Path, epochs: int) -> list[str]:
 
 def _latest_ok(folder: Path) -> dict:
     """Does the newest checkpoint load? (a kill may leave none yet, never a broken one)."""
-    from ffjax.train import checkpoint
+    from ffjax import store
 
     try:
-        _, _, _, v = checkpoint.load_checkpoint(folder, "latest")
+        store.load(folder, "latest")
     except FileNotFoundError:
         return {"ckpt_step": None, "corrupt": False}
     except Exception as e:  # anything else is a checkpoint a kill damaged
@@ -263,9 +263,9 @@ def _params_equal(a: Path, b: Path, which: str) -> bool:
     import jax
     import numpy as np
 
-    from ffjax.train import checkpoint
+    from ffjax import store
 
-    va, vb = (checkpoint.load_checkpoint(x, which)[3] for x in (a, b))
+    va, vb = (store.load(x, which).variables for x in (a, b))
     la, lb = jax.tree.leaves(va), jax.tree.leaves(vb)
     return len(la) == len(lb) and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb))
 

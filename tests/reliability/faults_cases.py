@@ -204,15 +204,15 @@ def build_shared(folder: Path, env: dict) -> Shared:
     _clear(folder)
     folder.mkdir(parents=True)
     data, run = folder / "data", folder / "run"
-    gen = _cli(folder, "dataset", env, "ffjax.sim.dataset", "--preset", "smoke", "--out", data, "--quiet",
+    gen = _cli(folder, "dataset", env, "ffjax.simulate", "--preset", "smoke", "--out", data, "--quiet",
                "--workers", min(2, os.cpu_count() or 1), *(a for s in SMALL_DATA for a in ("--set", s)))
     trained = gen["rc"] == 0 and _cli(folder, "train", env, *_train(data, run, "train.epochs=2",
                                                                     "train.ckpt_every=3"))["rc"] == 0
     if not trained:
         raise RuntimeError(f"shared fixtures failed; see {folder}/*.stderr")
-    from ffjax import inference
+    from ffjax import store
 
-    bundle = inference.save_bundle(folder / "bundle", inference.read_checkpoint(run))
+    bundle = store.save_bundle(folder / "bundle", store.load(run))
     n = _write_video(data / "val", folder / "press.mp4")
     return Shared(env, data, run, bundle, folder / "press.mp4", n)
 
@@ -237,14 +237,14 @@ def _nan_bundle(run: Path, out: Path) -> str:
     import jax
     import numpy as np
 
-    from ffjax import inference
+    from ffjax import store
 
-    ckpt = inference.read_checkpoint(run)
+    ckpt = store.load(run)
     variables = jax.tree.map(np.array, ckpt.variables)  # writable copies
     leaves = jax.tree_util.tree_flatten_with_path(variables["params"]["regressor"])[0]
     path, kernel = [(p, x) for p, x in leaves if x.ndim == 2][-1]
     kernel[0, 0] = np.nan
-    inference.save_bundle(out, ckpt, variables)
+    store.save_bundle(out, ckpt, variables)
     return "regressor" + jax.tree_util.keystr(path)
 
 
@@ -408,7 +408,7 @@ def _fill(path: Path) -> int:
 
 def _loads(run: Path, step: int, scratch: Path) -> bool:
     """Does checkpoint `step` of `run` restore, checksums included? (copied alone into `scratch`)"""
-    from ffjax.train import checkpoint
+    from ffjax import store
 
     src = run / "checkpoints" / str(step)
     if not src.is_dir():
@@ -416,7 +416,7 @@ def _loads(run: Path, step: int, scratch: Path) -> bool:
     shutil.copytree(src, scratch / "checkpoints" / str(step))
     shutil.copy2(run / "model.json", scratch / "model.json")
     try:
-        checkpoint.load_checkpoint(scratch, "latest")
+        store.load(scratch, "latest")
     except Exception:  # noqa: BLE001 - any failure to restore means the step is not intact
         return False
     return True

@@ -13,7 +13,7 @@ import pytest
 from _tiny_data import write_tiny_split
 
 import configs
-from ffjax import convert, train
+from ffjax import convert, store, train
 from ffjax.convert import reader
 from ffjax.errors import CheckpointError
 
@@ -38,12 +38,12 @@ def _copy(run, tmp_path):
 
 
 def test_missing_checkpoint_is_refused(run, tmp_path):
-    with pytest.raises(FileNotFoundError, match=str(tmp_path / "model.json")):
-        train.load_checkpoint(tmp_path)
+    with pytest.raises(FileNotFoundError, match=rf"{tmp_path}: not a checkpoint folder; expected model.json"):
+        store.load(tmp_path)
     dst = _copy(run, tmp_path)
     shutil.rmtree(dst / "best")
     with pytest.raises(FileNotFoundError, match=rf"{dst / 'best'}.* no best checkpoint"):
-        train.load_checkpoint(dst, "best")
+        store.load(dst, "best")
 
 
 def test_partial_checkpoint_is_refused(run, tmp_path):
@@ -54,7 +54,7 @@ def test_partial_checkpoint_is_refused(run, tmp_path):
         if p.is_file() and ("ocdbt" in str(p) or p.parent.name == "d"):
             p.unlink()
     with pytest.raises(CheckpointError, match=rf"{dst / 'checkpoints' / str(step)}: its files are damaged"):
-        train.load_checkpoint(dst, "latest")
+        store.load(dst, "latest")
 
 
 def test_other_architecture_is_refused(run, tmp_path):
@@ -62,10 +62,14 @@ def test_other_architecture_is_refused(run, tmp_path):
     info = json.loads((dst / "model.json").read_text())
     info["cfg"]["model"]["vit"]["dim"] = 48  # model.json now describes a wider model than the weights
     (dst / "model.json").write_text(json.dumps(info))
+    with pytest.raises(CheckpointError, match=rf"{dst / 'model.json'} was changed after it was written"):
+        store.load(dst, "best")
+    del info["sha256"]  # as a model.json written before it carried its digest: the weights' shapes tell
+    (dst / "model.json").write_text(json.dumps(info))
     with pytest.raises(CheckpointError, match=rf"{dst / 'best'}.*another model"):
-        train.load_checkpoint(dst, "best")
+        store.load(dst, "best")
     with pytest.raises(CheckpointError, match=rf"{dst / 'checkpoints'}.*another model"):
-        train.load_checkpoint(dst, "latest")
+        store.load(dst, "latest")
 
 
 def test_resume_with_another_method_or_architecture_is_refused(run, tmp_path):
@@ -81,7 +85,7 @@ def test_resume_with_another_method_or_architecture_is_refused(run, tmp_path):
     assert {w.filename for w in warned if "changed config" in str(w.message)} == {__file__}  # points at the caller
     # the refused resume used to leave the wider model's model.json beside these weights: the run no longer loaded
     assert (dst / "model.json").read_bytes() == before
-    train.load_checkpoint(dst)
+    store.load(dst)
 
 
 @pytest.mark.parametrize("text", ["{not json", json.dumps({"hello": 1}), json.dumps([1, 2])])
@@ -89,16 +93,17 @@ def test_foreign_model_json_is_refused(run, tmp_path, text):
     dst = _copy(run, tmp_path)
     (dst / "model.json").write_text(text)
     with pytest.raises(CheckpointError, match=rf"{dst / 'model.json'}"):
-        train.load_checkpoint(dst)
+        store.load(dst)
 
 
 def test_unknown_method_is_refused(run, tmp_path):
     dst = _copy(run, tmp_path)
     info = json.loads((dst / "model.json").read_text())
     info["method"] = "someone_elses_net"
+    del info["sha256"]  # (with it, the edit itself is refused: test_rel_artifacts)
     (dst / "model.json").write_text(json.dumps(info))
     with pytest.raises(CheckpointError, match=rf"{dst / 'model.json'}.*cannot build"):
-        train.load_checkpoint(dst)
+        store.load(dst)
 
 
 # protocol 2, by hand: OrderedDict w -> _rebuild_tensor_v2(<persistent storage "0">, 0, (4,), (1,), False)

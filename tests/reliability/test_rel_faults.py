@@ -17,9 +17,9 @@ import pytest
 from _tiny_data import write_tiny_dataset
 
 import configs
-from ffjax import train
+from ffjax import store, train
 from ffjax.errors import WriteError
-from ffjax.train import checkpoint as ckpt_lib
+from ffjax.store import checkpoints as ckpt_lib
 from ffjax.train import loop as loop_lib
 
 METHOD = "dino_rd"  # the smoke model test_train / test_resume compile too
@@ -89,13 +89,13 @@ def test_sigkill_twice_then_resume_equals_uninterrupted(data, reference, tmp_pat
         _kill_when(cmd, env, lambda b=before[0]: any(s > b for s in _ckpt_steps(run)))
         seen.append(_ckpt_steps(run))
         # after every kill the newest checkpoint loads (a kill never leaves a broken one)
-        train.load_checkpoint(run, which="latest")
+        store.load(run, which="latest")
     assert subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True).returncode == 0, seen
     summary = json.loads((run / "summary.json").read_text())
     assert summary["steps"] == 12 and summary["val"] == json.loads(json.dumps(reference["val"]))
-    assert _same(train.load_checkpoint(run, "latest")[3], reference["state"].variables())
-    ref_best = train.load_checkpoint(reference["run_dir"], "best")[3]
-    assert _same(train.load_checkpoint(run, "best")[3], ref_best)
+    assert _same(store.load(run, "latest").variables, reference["state"].variables())
+    ref_best = store.load(reference["run_dir"], "best").variables
+    assert _same(store.load(run, "best").variables, ref_best)
 
     def rows(folder):
         return [(r["kind"], r["step"], r.get("loss")) for r in map(json.loads, open(Path(folder) / "train_log.jsonl"))]
@@ -122,7 +122,7 @@ def test_sigkill_dataset_generation_keeps_finished_shards(tmp_path):
     ref = tmp_path / "ref"
     dataset.generate(cfg, ref, progress=False)
     out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "ffjax.sim.dataset", "--preset", "smoke", "--out", str(out), "--quiet",
+    cmd = [sys.executable, "-m", "ffjax.simulate", "--preset", "smoke", "--out", str(out), "--quiet",
            "--workers", "1"] + [a for s in sets for a in ("--set", s)]
     shards = lambda: sorted(out.rglob("shard_*.npz"))  # noqa: E731
     _kill_when(cmd, _env(tmp_path), lambda: len(shards()) >= 3)
@@ -214,7 +214,7 @@ def test_disk_full_mid_save_keeps_last_good_checkpoint(data, reference, tmp_path
         train.train(_cfg(), METHOD, data, tmp_path, progress=False)
     monkeypatch.setattr(jch.JsonCheckpointHandler, "_save_fn", real)
     assert _ckpt_steps(tmp_path)[-1] == 6
-    train.load_checkpoint(tmp_path, which="latest")
+    store.load(tmp_path, which="latest")
     done = train.train(_cfg(), METHOD, data, tmp_path, resume=True, progress=False)
     assert _same(done["state"].arrays(), reference["state"].arrays())
 
@@ -243,7 +243,7 @@ def test_nonfinite_stops_naming_step_and_batch(data, tmp_path, monkeypatch):
     src = fdata.open_split(data / "train")
     idx = loop_lib.batch_records(len(src), 0, 8, 7)
     np.testing.assert_allclose(np.stack([src[i]["force"] for i in idx]), seen[0])
-    _, _, _, v = train.load_checkpoint(tmp_path, which="latest")
+    v = store.load(tmp_path, which="latest").variables
     assert all(np.isfinite(x).all() for x in _leaves(v))
 
 

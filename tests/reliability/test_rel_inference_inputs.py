@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import configs
-from ffjax import data, inference, models, registry, sim
+from ffjax import data, inference, models, registry, sim, store
 
 H, W, SIZE = 24, 32, 32
 
@@ -19,7 +19,7 @@ def sensor_bg(name: str) -> np.ndarray:
     return sim.sensors.get_sensor(name).background((H, W))
 
 
-def tiny_checkpoint(reference_bg=None) -> inference.Checkpoint:
+def tiny_checkpoint(reference_bg=None) -> store.Trained:
     """A smoke dino_r model with random weights; `reference_bg`'s statistics recorded as the training one's."""
     cfg = configs.get("smoke")
     spec = registry.get("dino_r")
@@ -28,7 +28,8 @@ def tiny_checkpoint(reference_bg=None) -> inference.Checkpoint:
     stats = data.Stats(mean=(0.5,) * 3, std=(0.1,) * 3, depth_min=0.0, depth_max=1.0, force_min=(-2.0, -2.0, 0.0),
                        force_max=(2.0, 2.0, 15.0), input_size=SIZE)
     ref = None if reference_bg is None else inference.background_stats(reference_bg)
-    return inference.Checkpoint(cfg, spec, stats, variables, SIZE, (H, W), "argument", "run", "memory", {}, ref)
+    return store.Trained(cfg, spec, stats, SIZE, (H, W), "argument", "run", "memory", variables,
+                        background_stats=ref)
 
 
 @pytest.fixture(scope="module")
@@ -129,23 +130,23 @@ def test_bgr_flag_is_exactly_a_channel_swap(pred):
 
 def test_bundle_and_sensor_json_record_the_reference(tmp_path):
     ckpt = tiny_checkpoint(None)
-    inference.save_bundle(tmp_path / "b", ckpt, background=sensor_bg("mini-1"))
+    store.save_bundle(tmp_path / "b", ckpt, background=sensor_bg("mini-1"))
     info = json.loads((tmp_path / "b" / "model.json").read_text())
     assert info["background_stats"]["mean"] == pytest.approx(sensor_bg("mini-1").reshape(-1, 3).mean(0), abs=0.01)
     p = inference.load(tmp_path / "b")
     with pytest.warns(inference.BackgroundWarning):
         p.set_background(sensor_bg("mini-2"))
-    inference.save_bundle(tmp_path / "c", ckpt)  # no background: none recorded ...
+    store.save_bundle(tmp_path / "c", ckpt)  # no background: none recorded ...
     (tmp_path / "c" / "sensor.json").write_text(json.dumps(
         {"background_stats": inference.background_stats(sensor_bg("mini-2"))}))  # ... but sensor.json has one
-    assert inference.load(tmp_path / "c").checkpoint.background_stats["mean"] == pytest.approx(
+    assert inference.load(tmp_path / "c").trained.background_stats["mean"] == pytest.approx(
         sensor_bg("mini-2").reshape(-1, 3).mean(0), abs=0.01)
 
 
 def test_background_png_beside_a_bundle_is_the_reference(tmp_path):
     from ffjax.data.sources import write_rgb
 
-    inference.save_bundle(tmp_path / "cal", tiny_checkpoint(None))  # what ffjax.calibrate writes, roughly
+    store.save_bundle(tmp_path / "cal", tiny_checkpoint(None))  # what ffjax.calibrate writes, roughly
     write_rgb(tmp_path / "cal" / "background.png", sensor_bg("digit"))
     p = inference.load(tmp_path / "cal")
     with pytest.warns(inference.BackgroundWarning, match="another sensor"):

@@ -11,8 +11,8 @@ import pytest
 from _tiny_data import write_tiny_dataset
 
 import configs
-from ffjax import cli, inference, train
-from ffjax.train import checkpoint as ckpt_lib
+from ffjax import cli, inference, store, train
+from ffjax.store import checkpoints as ckpt_lib
 
 METHOD = "dino_rd"
 
@@ -146,10 +146,10 @@ def test_orbax_records_after_the_error_line_are_dropped(capsys):
 
 
 def test_a_damaged_bundle_names_its_file(reference, tmp_path):
-    ckpt = inference.read_checkpoint(reference["run_dir"])
+    ckpt = store.load(reference["run_dir"])
 
     def bundle(name):
-        return inference.save_bundle(tmp_path / name, ckpt)
+        return store.save_bundle(tmp_path / name, ckpt)
 
     b = bundle("truncated")
     raw = (b / "variables.msgpack").read_bytes()
@@ -171,9 +171,9 @@ def test_a_damaged_bundle_names_its_file(reference, tmp_path):
     (b / "variables.msgpack").unlink()
     with pytest.raises(ckpt_lib.CheckpointError, match=rf"{b / 'variables.msgpack'} is missing: .* is a bundle"):
         inference.load(b)
-    b = bundle("other_weights")  # an older bundle (no sha256) whose weights are another model's
+    b = bundle("other_weights")  # an older bundle (no digests) whose weights are another model's
     info = json.loads((b / "model.json").read_text())
-    del info["variables_sha256"]
+    del info["variables_sha256"], info["sha256"]
     info["cfg"]["model"]["vit"]["dim"] = 48
     (b / "model.json").write_text(json.dumps(info))
     with pytest.raises(ckpt_lib.CheckpointError, match="does not hold the weights of the dino_rd model"):

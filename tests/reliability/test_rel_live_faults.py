@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import configs
-from ffjax import data, inference, live, models, registry, sim
+from ffjax import data, inference, live, models, registry, sim, store
 
 H, W, SIZE = 24, 32, 32
 BG = sim.sensors.get_sensor("mini-1").background((H, W))
@@ -24,7 +24,7 @@ def ckpt():
                                                             train=False)
     stats = data.Stats(mean=(0.5,) * 3, std=(0.1,) * 3, depth_min=0.0, depth_max=1.0, force_min=(-2.0, -2.0, 0.0),
                        force_max=(2.0, 2.0, 15.0), input_size=SIZE)
-    return inference.Checkpoint(cfg, spec, stats, variables, SIZE, (H, W), "argument", "run", "memory", {})
+    return store.Trained(cfg, spec, stats, SIZE, (H, W), "argument", "run", "memory", variables)
 
 
 @pytest.fixture()
@@ -122,7 +122,7 @@ def test_none_frames_skipped_and_bad_frames_flagged(pred):
 
 
 def test_cli_exits_3_with_the_csv_written(ckpt, tmp_path, monkeypatch, capsys):
-    inference.save_bundle(tmp_path / "model", ckpt)
+    store.save_bundle(tmp_path / "model", ckpt)
     dev = FakeDevice("f" * 6)
     monkeypatch.setattr(live.cv2, "VideoCapture", dev.open)
     monkeypatch.setattr(live.time, "sleep", dev.waits.append)

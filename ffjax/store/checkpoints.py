@@ -1,6 +1,6 @@
-"""Run folders: orbax checkpoints (latest + best) and model.json, so a run is self-describing.
+"""A training run's checkpoints: orbax's latest (to resume) and best (to use), verified by per-tensor checksums.
 
-    RUN/model.json        cfg (full), method and its full spec, input_size, data Stats, force range
+    RUN/model.json        what the model is (ffjax.store.model_json)
     RUN/checkpoints/<step>/  packed (params, batch_stats, opt_state, step, rng key as one buffer per dtype,
                           packed.py; older runs: state, the same as a tensor tree), data (grain iterator
                           state, JSON), meta (epoch, best so far, epoch accumulators, the packed layout; JSON)
@@ -19,7 +19,6 @@ A missing, partial or foreign checkpoint is refused with `CheckpointError` namin
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import errno
 import json
 import shutil
@@ -31,15 +30,13 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from ffjax.errors import CheckpointError, WriteError
-from ffjax.files import atomic_write_bytes, atomic_write_text
-from ffjax.jsontree import retuple
-from ffjax.train import packed
+from ffjax.files import atomic_write_bytes
+from ffjax.store import packed
+from ffjax.store.model_json import MODEL_JSON
 
-MODEL_JSON = "model.json"
 # the run state's item in a resume checkpoint: packed (one buffer per dtype, packed.py) or, written before
 # packing existed or for a state with typed keys, the tensor tree
 PACKED, STATE = "packed", "state"
-_MODEL_KEYS = ("method", "input_size", "stats", "cfg")
 
 
 def _save_error(e: BaseException, what: str, good) -> WriteError:
@@ -370,121 +367,13 @@ def _why(e: BaseException, same_model: bool | None = None) -> str:
     return f"it is partial, corrupt or not an ffjax checkpoint ({type(e).__name__}: {text[:300]})"
 
 
-def write_model_json(run_dir, cfg: dict, spec, stats, input_size: int, frame_size=None,
-                     background_stats: dict | None = None) -> dict:
-    """Write run_dir/model.json: all a predictor needs to rebuild the model and its preprocessing.
-
-    frame_size: (H, W) of the training camera frames, so a predictor can refuse frames of another size.
-    background_stats: the training background's per-channel statistics, so a predictor can warn when it is
-    handed a background from another sensor.
-    """
-    info = {
-        "method": spec.name,
-        "spec": dataclasses.asdict(spec) if dataclasses.is_dataclass(spec) else {"name": spec.name},
-        "input_size": int(input_size),
-        "stats": stats.to_dict(),
-        "force_range": {"min": list(stats.force_min), "max": list(stats.force_max)},
-        "frame_size": None if frame_size is None else [int(v) for v in frame_size],
-        **({"background_stats": background_stats} if background_stats else {}),
-        "cfg": _jsonable(cfg),
-    }
-    atomic_write_text(Path(run_dir) / MODEL_JSON, json.dumps(info, indent=2))
-    return info
-
-
-def read_model_json(run_dir) -> dict:
-    """model.json of a run folder; refused (naming the path) when missing, partial or not ffjax's."""
-    path = Path(run_dir) / MODEL_JSON
-    if not path.is_file():
-        raise FileNotFoundError(f"{path} not found: not a training run folder (python -m ffjax.train ...)")
-    try:
-        info = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise CheckpointError(f"{path} is not valid JSON (a partial copy, or not an ffjax run): {e}") from e
-    missing = [k for k in _MODEL_KEYS if not isinstance(info, dict) or k not in info]
-    if missing:
-        raise CheckpointError(f"{path} is not an ffjax model.json: missing {', '.join(missing)}")
-    return info
-
-
-@dataclasses.dataclass(frozen=True)
-class SavedModel:
-    """What a model.json describes: the config (tuples restored), the method (its full spec), the data
-    statistics and the input size; `info` is the file's JSON as read."""
-
-    info: dict
-    cfg: dict
-    spec: object
-    stats: object
-    input_size: int
-
-    def build(self):
-        from ffjax import models
-
-        return models.build(self.cfg["model"], self.spec, self.input_size)
-
-    def abstract_variables(self) -> dict:
-        """{"params", "batch_stats"} as shapes and dtypes (nothing allocated)."""
-        model, size = self.build(), self.input_size
-        dummy = jax.ShapeDtypeStruct((1, size, size, 3), np.float32)
-        abstract = jax.eval_shape(lambda x: model.init(jax.random.PRNGKey(0), x, train=False), dummy)
-        return {"params": abstract["params"], "batch_stats": abstract.get("batch_stats", {})}
-
-
-def read_model(folder) -> SavedModel:
-    """The model a run folder's (or a bundle's) model.json describes; CheckpointError when it cannot be built."""
-    path = Path(folder) / MODEL_JSON
-    return saved_model(read_model_json(folder), path)
-
-
-def saved_model(info: dict, path) -> SavedModel:
-    """SavedModel from model.json's JSON (`path` names it in errors). The method comes from its "spec", so a
-    variant that was never registered in this process loads; a model.json written before the spec was recorded
-    names a registry method."""
-    import configs
-    from ffjax.data.stats import Stats  # the module, not the package: the package's CSV tools import the CLI
-
-    cfg = info["cfg"]
-    try:
-        cfg = retuple(cfg, configs.get(cfg.get("preset", "smoke")))
-    except ValueError:  # a preset this ffjax lacks: the config's lists stay lists
-        pass
-    try:
-        saved = SavedModel(info, cfg, method_of(info), Stats.from_dict(info["stats"]), int(info["input_size"]))
-        saved.build()
-    except (KeyError, TypeError, ValueError) as e:
-        raise CheckpointError(f"{path} describes a model this ffjax cannot build: {e}") from e
-    return saved
-
-
-def method_of(info: dict):
-    """The registry Method of model.json's JSON: from its full "spec" (every Method field), else the registry
-    entry its name is (a model.json written before the spec was recorded); ValueError for fields this ffjax
-    lacks."""
-    from ffjax import registry
-
-    spec = info.get("spec")
-    if not (isinstance(spec, dict) and set(spec) != {"name"}):
-        return registry.get(info["method"])
-    if spec.get("name") != info["method"]:  # edited by hand or written by something else: which one is it?
-        raise ValueError(f"its method {info['method']!r} is not its spec's {spec.get('name')!r}")
-    unknown = sorted(set(spec) - {f.name for f in dataclasses.fields(registry.Method)})
-    if unknown:
-        raise ValueError(f"method {spec.get('name')!r} has fields this ffjax does not know: {unknown}")
-    return registry.Method(**spec)
-
-
-def load_checkpoint(run_dir, which: str = "best"):
-    """(cfg, spec, stats, variables) of a run: the best-validation weights or the latest ones.
-
-    Works for any run folder written by `train`, whichever process trained it: model.json says how to rebuild
-    the model (the method's full spec included, so sweep variants need no registering).
-    """
+def restore_variables(run_dir, which: str, target: dict) -> dict:
+    """{"params", "batch_stats"} of a run's best checkpoint (the lowest validation loss) or its latest one,
+    checked against `target` (the model's abstract variables) and the checksums saved with it; CheckpointError
+    naming the step folder otherwise."""
     if which not in ("best", "latest"):
         raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
     run_dir = Path(run_dir).absolute()
-    saved = read_model(run_dir)
-    target = saved.abstract_variables()
     folder = run_dir / ("best" if which == "best" else "checkpoints")
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder} not found: {run_dir} has no {which} checkpoint yet")
@@ -499,7 +388,7 @@ def load_checkpoint(run_dir, which: str = "best"):
     variables = {"params": out["params"]}
     if out.get("batch_stats"):
         variables["batch_stats"] = out["batch_stats"]
-    return saved.cfg, saved.spec, saved.stats, variables
+    return variables
 
 
 def _restore_variables(mgr, step: int, which: str, target: dict, path: Path) -> dict:
