@@ -9,6 +9,7 @@ dotted key in the message, before any entry point starts work.
 
 from __future__ import annotations
 
+import ast
 import copy
 import difflib
 import importlib
@@ -121,8 +122,6 @@ _FREE_LENGTH = ("widths", "blocks", "channels")
 
 def parse_override(text: str) -> tuple[str, Any]:
     """Parse a CLI override `a.b=value` (value read as a Python literal when it is one)."""
-    import ast
-
     if "=" not in text:
         raise ConfigError(f"override {text!r} must look like key.path=value")
     key, raw = text.split("=", 1)

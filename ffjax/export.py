@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ffjax import inference
+from ffjax import cli, inference
 from ffjax.errors import CheckpointError
 from ffjax.files import atomic_write_bytes, atomic_write_json, check_output, read_json, sha256_bytes
 
@@ -189,8 +189,6 @@ def main(argv=None) -> int:
     p.add_argument("--frame-size", default=None, help="HxW of the sensor frames, if the checkpoint lacks it")
     p.add_argument("--force", action="store_true", help="replace an existing export (and its sidecar)")
     a = p.parse_args(argv)
-    from ffjax import cli
-
     for target in (a.out, sidecar_path(a.out)):  # before loading and compiling
         check_output(target, reads=[a.checkpoint], force=a.force)
     cli.check_out(p, Path(a.out).absolute().parent)

@@ -40,6 +40,7 @@ import functools
 import time
 import warnings
 
+import cv2
 import jax
 import numpy as np
 
@@ -304,8 +305,6 @@ class Predictor:
         return np.stack([self._to_frame(m) for m in d]) if frame else d
 
     def _to_frame(self, d: np.ndarray) -> np.ndarray:
-        import cv2
-
         h, w = self.background.shape[:2]
         side = max(h, w)
         top, left = (side - h) // 2, (side - w) // 2

@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 
 from ffjax import inference, live_filters
+from ffjax.data.sources import read_rgb
 from ffjax.files import check_output, folder_lock
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
@@ -178,8 +179,6 @@ def _read_video(cap):
 
 
 def image_frames(folder, fps: float = 25.0, exclude=()):
-    from ffjax.data.sources import read_rgb
-
     if not Path(folder).is_dir():
         raise FileNotFoundError(f"--images {folder}: no such folder")
     files = sorted(p for p in Path(folder).iterdir() if p.suffix.lower() in IMAGE_EXTS
@@ -465,8 +464,6 @@ def main(argv=None) -> int:
     smoother = live_filters.parse(a.smooth)
     background = None
     if a.background:
-        from ffjax.data.sources import read_rgb
-
         background = _resizer(a.resize, pred)(read_rgb(a.background, "background"))
     if a.camera is not None:
         frames = camera_frames(a.camera, max_drops=a.max_drops, reconnects=a.reconnects, backoff=a.reconnect_wait,

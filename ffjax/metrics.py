@@ -18,6 +18,8 @@ import functools
 import jax
 import numpy as np
 
+from ffjax import data
+
 AXES = ("Fx", "Fy", "Fz")
 
 
@@ -81,8 +83,6 @@ def evaluate_split(model, variables, source, stats, input_size: int, batch_size:
     Streams batches through the same preprocessing as training; normalization uses `stats`
     (the TRAINING split's force range).
     """
-    from ffjax import data
-
     if isinstance(source, str) or hasattr(source, "__fspath__"):
         source = data.open_split(source)
     preds, trues = [], []
@@ -96,8 +96,6 @@ def evaluate_split(model, variables, source, stats, input_size: int, batch_size:
 
 def iterate_once(source, stats, input_size: int, batch_size: int):
     """One ordered pass over every record (last batch may be short)."""
-    from ffjax import data
-
     ds = data.make_dataset(
         source, stats, input_size, batch_size, seed=0, shuffle=False, num_epochs=1, drop_remainder=False
     )

@@ -105,6 +105,6 @@ def test_csv_converter_round_trip(root, tmp_path):
 def test_refused_pose_is_pulled_inwards():
     sensor = sim.get_sensor("mini-1")
     x = 0.75 * sensor.fov_mm[1]  # off the pad: the simulator refuses it
-    s = dataset._press_safe(sim, sim.get_shape("cone"), sensor, (0.1, 0.0, 5.0), x, 0.0, 0.0, (1.0, 0.0), 3,
+    s = dataset._press_safe(sim.get_shape("cone"), sensor, (0.1, 0.0, 5.0), x, 0.0, 0.0, (1.0, 0.0), 3,
                             (24, 32))
     assert s.meta["x_mm"] == pytest.approx(x / 2) and s.force[2] == pytest.approx(5.0)

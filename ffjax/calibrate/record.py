@@ -33,8 +33,10 @@ import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from ffjax import cli
 from ffjax.data.sources import BACKGROUND_NAME, CSV_NAME, write_rgb
 from ffjax.files import atomic_write_text, folder_lock
 
@@ -146,8 +148,6 @@ def _session(frames, ask, out: Path, per_press: int, warmup: int, bg_frames: int
 def camera_frames(index: int, flush: int = 4) -> Iterator[np.ndarray]:
     """RGB frames from cv2.VideoCapture(index); `flush` stale buffered frames are dropped before each, so
     a frame read after the user pressed Enter shows the present, not the past."""
-    import cv2
-
     cap = cv2.VideoCapture(index)
     if not cap.isOpened():
         raise RuntimeError(f"cannot open camera {index} (is the sensor plugged in? try another index)")
@@ -198,13 +198,9 @@ def main(argv=None) -> int:
     p.add_argument("--baud", type=int, default=9600)
     p.add_argument("--serial-query", default=None, help="text sent to the gauge before each reading")
     a = p.parse_args(argv)
-    from ffjax import cli
-
     cli.check_out(p, a.out)  # before the camera: a typo in --out costs no warmup
     frames = camera_frames(a.camera)
     if a.resize:
-        import cv2
-
         h, w = (int(v) for v in a.resize.lower().split("x"))
         frames = (cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames)
     if a.serial:

@@ -11,6 +11,7 @@ Tensors stay lazy (`TensorRef`) until asked for, so optimizer state in a trainin
 from __future__ import annotations
 
 import collections
+import io
 import pickle
 import zipfile
 from pathlib import Path
@@ -212,8 +213,6 @@ class _Archive:
 
 class _SafeUnpickler(pickle.Unpickler):
     def __init__(self, data: bytes, archive: _Archive):
-        import io
-
         super().__init__(io.BytesIO(data))
         self.archive = archive
 
@@ -275,7 +274,7 @@ def load(path) -> object:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
     if path.suffix == ".safetensors":
-        from safetensors.numpy import load_file
+        from safetensors.numpy import load_file  # the optional extra ffjax[weights]
 
         try:
             return load_file(str(path))

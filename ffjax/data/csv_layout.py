@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from ffjax import cli
 from ffjax.data.sources import BACKGROUND_NAME, CSV_NAME, open_split, write_rgb
 from ffjax.files import atomic_write_text, check_output
 
@@ -61,8 +62,6 @@ def main(argv=None):
                    help="output folder (data.csv, tactile/, depth/, background.png)")
     p.add_argument("--force", action="store_true", help="write into an existing --out (its files are replaced)")
     args = p.parse_args(argv)
-    from ffjax import cli
-
     check_output(args.out, reads=[args.split], force=args.force)
     src = open_split(args.split)
     path = write_csv(src, cli.check_out(p, args.out))

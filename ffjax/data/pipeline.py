@@ -12,6 +12,7 @@ import sys
 
 import grain
 import numpy as np
+from absl import flags
 
 from ffjax.data import epoch_order
 from ffjax.data.preprocess import preprocess_depth, preprocess_image
@@ -96,8 +97,6 @@ class ShuffledIndexBatches(grain.MapDataset):
 
 def _mark_flags_parsed():
     # grain 0.2.18 worker processes read absl flags and raise UnparsedFlagAccessError unless parsed.
-    from absl import flags
-
     if not flags.FLAGS.is_parsed():
         flags.FLAGS.mark_as_parsed()
 

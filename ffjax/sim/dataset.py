@@ -27,6 +27,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import dataclasses
 import functools
+import hashlib
 import io
 import json
 import multiprocessing
@@ -41,6 +42,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from ffjax import sim
+from ffjax.data.sources import write_rgb
 from ffjax.files import atomic_write, atomic_write_text, check_writable
 from ffjax.sim.sensors import MINI_NAMES, SENSOR_NAMES, get_sensor
 
@@ -83,8 +86,6 @@ def split_dir(root, kind: str, name: str | None = None) -> Path:
 
 def split_specs(cfg: dict) -> list[SplitSpec]:
     """All splits of a config, in a fixed order (the order sets each split's seeds)."""
-    from ffjax import sim
-
     d = cfg["data"]
     train = d["train_sensor"]
     ind = tuple(sim.INDENTERS)
@@ -109,8 +110,6 @@ def gen_config(cfg: dict) -> dict:
 
 def sim_fingerprint() -> str:
     """Hash of the simulator's source: recorded in the manifest, warned about (not enforced) on reuse."""
-    import hashlib
-
     h = hashlib.sha256()
     for f in sorted(Path(__file__).parent.glob("*.py")):
         h.update(f.name.encode() + f.read_bytes())
@@ -127,8 +126,6 @@ def render_size(sensor, size) -> tuple[int, int]:
 def safe_region(shape_name: str, sensor_key: str, fz_max: float) -> tuple[float, float]:
     """Half-ranges (x, y) in mm for the pose offset: the shape's footprint at fz_max stays on the pad
     (0.9 of it), but never less than a fifth of the half pad (large objects overhang anyway)."""
-    from ffjax import sim
-
     shape, sensor = sim.get_shape(shape_name), get_sensor(sensor_key)
     try:
         pen = sim.press(shape, sensor, (0.0, 0.0, fz_max), size=(24, 32), noise=False).meta["penetration_mm"]
@@ -173,7 +170,7 @@ def sample_presses(spec: SplitSpec, cfg: dict) -> dict:
     return p
 
 
-def _press_safe(sim, shape, sensor, f, x, y, yaw, tilt, seed, size):
+def _press_safe(shape, sensor, f, x, y, yaw, tilt, seed, size):
     """One press; a pose the simulator refuses is pulled towards the centre (then untilted), so the
     requested Fz is always honoured. Deterministic."""
     for k in range(4):
@@ -189,8 +186,6 @@ def _press_safe(sim, shape, sensor, f, x, y, yaw, tilt, seed, size):
 
 def render_shard(spec: SplitSpec, p: dict, lo: int, hi: int, size) -> dict:
     """Render presses [lo, hi) of a split (already sampled): the shard's arrays."""
-    from ffjax import sim
-
     sensor = get_sensor(spec.sensor)
     size = render_size(sensor, size)
     n = hi - lo
@@ -210,7 +205,7 @@ def render_shard(spec: SplitSpec, p: dict, lo: int, hi: int, size) -> dict:
             b = sim.press_batch(shape, sensor, q["force"], q["x_mm"], q["y_mm"], q["yaw_deg"], q["tilt_deg"],
                                 q["seed"], size)
         except ValueError:  # some pose was refused: press one by one, pulling refused poses inwards
-            smp = [_press_safe(sim, shape, sensor, q["force"][j], q["x_mm"][j], q["y_mm"][j], q["yaw_deg"][j],
+            smp = [_press_safe(shape, sensor, q["force"][j], q["x_mm"][j], q["y_mm"][j], q["yaw_deg"][j],
                                tuple(q["tilt_deg"][j]), q["seed"][j], size) for j in range(len(rows))]
             b = {"image": np.stack([s.image for s in smp]), "depth": np.stack([s.depth for s in smp]),
                  "force": np.stack([s.force for s in smp]), "meta": [s.meta for s in smp]}
@@ -296,8 +291,6 @@ def _prepare(out: Path, g: dict, force: bool) -> None:
 
 def generate(cfg: dict, out, force: bool = False, workers: int | None = None, progress: bool = True) -> dict:
     """Write (or finish, or reuse) every split of `cfg` under `out`; returns the manifest dict."""
-    from ffjax import sim
-    from ffjax.data.sources import write_rgb
 
     out = Path(out)
     g = gen_config(cfg)

@@ -16,6 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ffjax import cli
 from ffjax.sim import INDENTERS, SENSOR_NAMES, UNSEEN_OBJECTS, get_sensor, press  # noqa: E402
 
 
@@ -93,8 +94,6 @@ def main(argv=None):
     ap.add_argument("--size", type=int, nargs=2, default=None, metavar=("H", "W"),
                     help="render size (default native)")
     args = ap.parse_args(argv)
-    from ffjax import cli
-
     cli.check_out(ap, args.out)
     for p in make(args.out, tuple(args.size) if args.size else None):
         print(p)

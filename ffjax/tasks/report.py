@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
 
-from ffjax import results
+from ffjax import registry, results
 from ffjax.tasks import grasping, pushing
 
 PERFECT = "perfect"
@@ -26,8 +27,6 @@ EXTRA = (
 
 
 def _paper_name(method: str) -> str:
-    from ffjax import registry
-
     try:
         return registry.get(method).paper_name
     except KeyError:
@@ -41,8 +40,6 @@ def _v(ms) -> float:
 def stamp(fig, res: dict) -> None:
     """The figure's provenance in its corner (preset, the checkpoints' training seeds, commit): see
     ffjax.results.stamp."""
-    import re
-
     seeds = sorted({int(m.group(1)) for runs in res.get("checkpoints", {}).values() for r in runs
                     if (m := re.search(r"seed(\d+)$", str(r)))})
     results.stamp(fig, res.get("preset", "?"), seeds or ["?"], res.get("commit", "?"))
@@ -293,7 +290,7 @@ def write_csvs(res: dict, out: Path) -> None:
 
 
 def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
-    import matplotlib
+    import matplotlib  # loaded only when figures are drawn (~0.5 s), not by the tasks themselves
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -7,6 +7,9 @@ import warnings
 
 import numpy as np
 
+from ffjax import inference
+from ffjax.inference import ForceRangeWarning
+
 
 class ModelSensor:
     """estimate(frames (N,H,W,3) uint8, background (H,W,3) uint8) -> forces (N, 3) in N."""
@@ -14,8 +17,6 @@ class ModelSensor:
     BUCKETS = (16,)  # the one batch shape compiled: every call is cut or padded to it
 
     def __init__(self, run_dir, which: str = "best"):
-        from ffjax import inference
-
         self.run_dir = str(run_dir)
         self.predictor = inference.load(run_dir, which=which)
         self.method = self.predictor.method
@@ -28,8 +29,6 @@ class ModelSensor:
         return tuple(self.predictor.frame_size)
 
     def __call__(self, frames: np.ndarray, background: np.ndarray) -> np.ndarray:
-        from ffjax.inference import ForceRangeWarning
-
         frames = np.asarray(frames)
         with warnings.catch_warnings(record=True) as said:
             warnings.simplefilter("always")

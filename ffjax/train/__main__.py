@@ -14,11 +14,14 @@ import time
 from pathlib import Path
 
 import configs
+from ffjax import cli, data, registry, train
+from ffjax.errors import CheckpointError, WriteError
+from ffjax.sim import dataset
+from ffjax.train import init_weights
+from ffjax.train.pretrain import load_backbone
 
 
 def parse_args(argv=None):
-    from ffjax import registry
-
     ap = argparse.ArgumentParser(prog="python -m ffjax.train", description=__doc__.split("\n\n")[0])
     # measured costs (2-core CPU: the quick ablation at 42ea49b, the full one at 942ebfd), so nobody starts a
     # long run unknowingly
@@ -64,8 +67,6 @@ def describe(val: dict | None) -> str:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    from ffjax import cli, registry, train
-    from ffjax.errors import CheckpointError, WriteError
 
     spec = registry.get(args.method)
     out = Path(args.out or Path("runs") / f"{args.preset}-{args.method}")
@@ -114,14 +115,10 @@ def _data(args):
     """What train() takes as data: --data/--val CSV files (every row checked now, so a bad file stops the run
     before any work), a dataset folder, or the preset's simulated dataset (generated once); an exit code when
     the arguments are refused."""
-    from ffjax import cli
-
     data_dir = args.data
     if args.val and not (data_dir and str(data_dir).endswith(".csv")):
         return cli.fail("--val goes with --data TRAIN.csv", cli.USAGE)
     if data_dir and str(data_dir).endswith(".csv"):
-        from ffjax import data
-
         try:
             data_dir = {k: data.open_split(v, validate=True, skip_bad_rows=args.skip_bad_rows) if v else None
                         for k, v in (("train", data_dir), ("val", args.val))}
@@ -130,8 +127,6 @@ def _data(args):
         if not args.val:
             print("note: no --val CSV: no validation, the best checkpoint is the last one", file=sys.stderr)
     elif data_dir is None:
-        from ffjax.sim import dataset
-
         data_dir = Path("data") / args.preset
         print(f"dataset: {data_dir} (simulated, preset {args.preset}; generated once, then reused)")
         dataset.generate(args.cfg, data_dir)
@@ -141,21 +136,15 @@ def _data(args):
 def _start(args, spec, restoring: bool):
     """(cfg, backbone, variables) a run starts from: --init (converted weights; it may set model keys),
     --pretrained (a pretrain folder's backbone) or random init; an exit code when the arguments are refused."""
-    from ffjax import cli
-
     cfg, backbone, variables = args.cfg, None, None
     if args.init and args.pretrained:
         return cli.fail("give --init or --pretrained, not both", cli.USAGE)
     if args.init:
-        from ffjax.train import init_weights
-
         try:
             cfg, backbone, variables = init_weights.apply(cfg, spec, args.init)
         except (ValueError, FileNotFoundError) as e:
             return cli.fail(e, cli.USAGE)
     elif args.pretrained:
-        from ffjax.train.pretrain import load_backbone
-
         if not Path(args.pretrained).is_dir():
             raise FileNotFoundError(f"--pretrained {args.pretrained}: no such folder (make one with python -m "
                                     "ffjax.train.pretrain --out DIR)")

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from ffjax import convert
 from ffjax.store import converted
+from ffjax.train.pretrain import load_backbone
 
 KINDS = ("dinov2", "resnet18", "feelanyforce", "pretrained")
 _BACKBONE = {"dinov2": "vit", "resnet18": "resnet", "feelanyforce": "vit"}
@@ -56,8 +57,6 @@ def apply(cfg: dict, spec, text: str) -> tuple[dict, tuple | None, dict | None]:
     """
     kind, path = parse(text)
     if kind == "pretrained":
-        from ffjax.train.pretrain import load_backbone
-
         return cfg, load_backbone(path), None
     if spec.backbone != _BACKBONE[kind]:
         raise ValueError(f"--init {kind} gives a {_BACKBONE[kind]} backbone; method {spec.name} uses {spec.backbone}")

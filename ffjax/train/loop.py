@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import io
 import json
 import math
 import os
@@ -32,14 +33,20 @@ import warnings
 from collections.abc import Callable
 from pathlib import Path
 
+import grain
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm.auto import tqdm
 
+from ffjax import data as fdata
 from ffjax import metrics as fmetrics
-from ffjax import store
+from ffjax import registry, store
+from ffjax.data import load_arrays
+from ffjax.data.pipeline import fits_in_memory
 from ffjax.errors import CheckpointError
 from ffjax.files import atomic_write_text, check_writable, folder_lock
+from ffjax.models import output_affine
 from ffjax.store import model_json
 from ffjax.store.checkpoints import Checkpointer
 from ffjax.train.state import init_state
@@ -75,8 +82,6 @@ def with_output_affine(cfg: dict, stats) -> dict:
     Only when cfg model.regressor.normalize_output is set and no scale is given yet; model.json then
     records the numbers, so a loaded checkpoint rebuilds the same model.
     """
-    from ffjax.models import output_affine
-
     rc = cfg["model"]["regressor"]
     if not rc["normalize_output"] or rc["out_scale"] is not None:
         return cfg
@@ -94,8 +99,6 @@ NONFINITE_MODES = ("stop", "skip")
 def batch_records(n: int, seed: int, batch_size: int, step: int) -> list[int]:
     """Indices into the train split of the batch that step `step` (1-based) trained on: the shuffled,
     repeated order make_dataset draws (one process), rebuilt only when an error needs to name it."""
-    import grain
-
     ds = grain.MapDataset.range(n).shuffle(seed=seed).repeat(None).batch(batch_size, drop_remainder=True)
     return [int(i) for i in ds[step - 1]]
 
@@ -103,15 +106,13 @@ def batch_records(n: int, seed: int, batch_size: int, step: int) -> list[int]:
 def open_sources(data_arg):
     """(train, val) sources from a dataset root (DIR/train, DIR/val), a {"train": .., "val": ..} dict
     of paths (shard dirs or release CSVs) or opened sources, or a (train, val) pair. val may be None."""
-    from ffjax import data
-
     def _open(x):
-        return data.open_split(x) if isinstance(x, (str, os.PathLike)) else x
+        return fdata.open_split(x) if isinstance(x, (str, os.PathLike)) else x
 
     if isinstance(data_arg, (str, os.PathLike)):
         root = Path(data_arg)
         val = root / "val"
-        return data.open_split(root / "train"), (data.open_split(val) if val.exists() else None)
+        return fdata.open_split(root / "train"), (fdata.open_split(val) if val.exists() else None)
     if isinstance(data_arg, dict):
         return _open(data_arg["train"]), (_open(data_arg["val"]) if data_arg.get("val") is not None else None)
     train_src, val_src = data_arg
@@ -124,8 +125,6 @@ class _Split:
     re-preprocesses a record; streamed per pass otherwise."""
 
     def __init__(self, source, stats, input_size: int):
-        from ffjax.data import load_arrays
-        from ffjax.data.pipeline import fits_in_memory
 
         self.source, self.stats, self.input_size = source, stats, input_size
         self.arrays = load_arrays(source, stats, input_size) if fits_in_memory(len(source), input_size) else None
@@ -257,8 +256,6 @@ class _Log:
 
 
 def _csv_text(rows, fields) -> str:
-    import io
-
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
     w.writeheader()
@@ -306,8 +303,6 @@ def train(cfg: dict, spec, data, out_dir, resume: bool = False, init_backbone: t
 def _train(cfg: dict, spec, data, out_dir, resume: bool = False, init_backbone: tuple | None = None, *,
            init_variables: dict | None = None, max_steps: int | None = None, callback: Callable | None = None,
            progress: bool = True, devices=None) -> dict:
-    from ffjax import registry
-
     spec = registry.get(spec) if isinstance(spec, str) else spec
     run = _open_run(cfg, spec, data, Path(out_dir), resume, init_backbone, init_variables, devices)
     run.loop(max_steps, callback, progress)
@@ -317,8 +312,6 @@ def _train(cfg: dict, spec, data, out_dir, resume: bool = False, init_backbone: 
 def _open_run(cfg, spec, data, run_dir: Path, resume, init_backbone, init_variables, devices) -> _Run:
     """Everything before step 1: sources, statistics (the run's own on resume), model.json, the state (restored
     on resume), the data iterator, the log, and every program besides the step compiled."""
-    from ffjax import data as fdata
-
     tc = cfg["train"]
     if tc["nonfinite"] not in NONFINITE_MODES:
         raise ValueError(f"train.nonfinite must be one of {NONFINITE_MODES}, got {tc['nonfinite']!r}")
@@ -625,6 +618,4 @@ def _diff(a, b, prefix: str = "") -> list[str]:
 def _progress(enabled: bool, total: int, start: int, name: str):
     if not enabled:
         return None
-    from tqdm.auto import tqdm
-
     return tqdm(total=total, initial=start, desc=f"train {name}", unit="step", dynamic_ncols=True)

@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from ffjax import models
 from ffjax.train.objective import Objective
 
 # Groups an optimizer knows about; every parameter leaf gets exactly one of them.
@@ -240,8 +241,6 @@ def init_state(
     (calibration passes its own lr); its compute_dtype (float32 when absent) is the train step's precision.
     The rng key is split: one half initialises, one is carried.
     """
-    from ffjax import models
-
     input_size = int(input_size or cfg["data"]["input_size"])
     model = models.build(cfg["model"], spec, input_size)
     init_key, carry_key = jax.random.split(key)
@@ -304,8 +303,6 @@ def force_weights(cfg: dict, cfg_train: dict) -> tuple[float, float, float] | No
 def abstract_state(cfg: dict, spec, input_size: int | None = None, **kw) -> TrainState:
     """The TrainState's shapes and dtypes (jax.ShapeDtypeStruct leaves) without allocating or compiling:
     for restore targets and for checking paper-scale configs (`jax.eval_shape(train_step, state, batch)`)."""
-    from ffjax import models
-
     size = int(input_size or cfg["data"]["input_size"])
     model = models.build(cfg["model"], spec, size)
 
