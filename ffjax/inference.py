@@ -11,7 +11,7 @@
 Inputs: uint8 frames, (H, W, 3) or (N, H, W, 3), channel order RGB (what `ffjax.data` reads and trains on).
 Frames straight from OpenCV (`cv2.VideoCapture.read`, `cv2.imread`) are BGR: pass `bgr=True` to
 set_background/predict/predict_depth, or convert once with `frame[..., ::-1]` / cv2.cvtColor(f, cv2.COLOR_BGR2RGB).
-`ffjax.data.sources.read_rgb`, PIL and imageio give RGB already. BGR passed as RGB is not an error (it cannot
+`ffjax.data.images.read_rgb`, PIL and imageio give RGB already. BGR passed as RGB is not an error (it cannot
 be told apart per frame), but when the checkpoint has a reference background (see ffjax.store: model.json
 "background_stats", a sensor.json, or a calibrated bundle's background.png) set_background warns if the
 reversed channel order matches it better.

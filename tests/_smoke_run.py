@@ -15,7 +15,7 @@ import numpy as np
 
 import configs
 from ffjax import sim
-from ffjax.data.sources import write_rgb
+from ffjax.data.images import write_rgb
 
 METHOD = "dino_rd"  # the same smoke model as test_train / test_resume: its train step is already compiled
 SENSOR = "mini-1"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 import configs
-from ffjax.data.sources import write_rgb
+from ffjax.data.images import write_rgb
 
 
 def write_tiny_split(path, n, seed):

@@ -21,7 +21,7 @@ LAYERS = (
     ("ffjax.errors",),  # the error types (imports nothing)
     ("ffjax.files", "ffjax.jsontree"),  # files on disk; JSON trees
     ("ffjax.cli", "ffjax.results"),  # one-line errors of every CLI; results files
-    ("ffjax.data", "ffjax.live_filters"),  # splits on disk and the input pipeline; force filters
+    ("ffjax.data",),  # splits on disk and the input pipeline
     ("ffjax.sim",),  # the simulator: no configs, no models
     ("configs",),  # presets, keys and checks (the sensor names come from sim)
     ("ffjax.models", "ffjax.metrics"),

@@ -7,8 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
-from ffjax import inference, live, live_filters
-from ffjax.data.sources import write_rgb
+from ffjax import inference, live
+from ffjax.data.images import write_rgb
+from ffjax.live import filters
 
 
 @pytest.fixture(scope="module")
@@ -97,7 +98,7 @@ def test_images_folder_matches_predictor_and_smooths(run_dir, clip, tmp_path):
     raw = np.array([[float(r[k]) for k in ("fx_raw", "fy_raw", "fz_raw")] for r in rows])
     np.testing.assert_allclose(raw, want, atol=1e-4)  # PNG is lossless: the same numbers as predict
     smooth = np.array([[float(r[k]) for k in ("fx", "fy", "fz")] for r in rows])
-    ema = live_filters.EMA(0.5)
+    ema = filters.EMA(0.5)
     np.testing.assert_allclose(smooth, [ema(0, x) for x in want], atol=1e-4)
 
 
@@ -117,7 +118,7 @@ def test_nan_forces_are_flagged_counted_and_never_crash_the_loop(run_dir, clip, 
     assert np.isnan(f).all() and pred.last_nonfinite.all() and pred.last_out_of_range.all()
     logs = []
     summary = live.run(pred, ((i / 10, x, i) for i, x in enumerate(frames[1:])), out=tmp_path,
-                       background=bg, smoother=live_filters.EMA(0.5), log=logs.append)
+                       background=bg, smoother=filters.EMA(0.5), log=logs.append)
     assert summary["frames"] == len(frames) - 1
     assert summary["flagged"] == {"non-finite force (corrupt weights or input)": len(frames) - 1}
     assert any("non-finite" in m for m in logs) and any("[NON-FINITE]" in m for m in logs)
@@ -143,20 +144,20 @@ def test_annotate_draws_on_an_enlarged_frame(clip):
 
 
 def test_filters():
-    ema = live_filters.parse("ema:0.25")
+    ema = filters.parse("ema:0.25")
     ys = [ema(i, [4.0, 0, 0])[0] for i in range(3)]
     assert ys == pytest.approx([4.0, 4.0, 4.0])  # starts at the first sample: no ramp from zero
     ema.reset()
     ema(0, [0, 0, 0])
     assert ema(1, [4, 0, 0])[0] == pytest.approx(1.0)
-    one = live_filters.parse("one-euro:min_cutoff=1.0,beta=0.5")
+    one = filters.parse("one-euro:min_cutoff=1.0,beta=0.5")
     rng = np.random.default_rng(0)
     t = np.arange(200) / 100
     noisy = 3 + 0.2 * rng.standard_normal(200)
     out = np.array([one(ti, [x, 0, 0])[0] for ti, x in zip(t, noisy)])
     assert np.std(out[50:]) < 0.5 * np.std(noisy[50:])  # jitter at rest is smoothed
-    assert live_filters.parse("one-euro:1,0.1,2").d_cutoff == 2.0
-    assert live_filters.parse(None) is None and live_filters.parse("off") is None
+    assert filters.parse("one-euro:1,0.1,2").d_cutoff == 2.0
+    assert filters.parse(None) is None and filters.parse("off") is None
     for bad in ("ema:2", "kalman:1", "one-euro:gain=1"):
         with pytest.raises(ValueError):
-            live_filters.parse(bad)
+            filters.parse(bad)

@@ -36,7 +36,7 @@ def make_split(root, cfg: dict, name: str, index: int, per_shape: int) -> tuple[
     folder = Path(root) / name
     folder.mkdir(parents=True, exist_ok=True)
     sim_dataset.save_npz(folder / "shard_00000.npz", arrays)
-    from ffjax.data.sources import write_rgb
+    from ffjax.data.images import write_rgb
 
     write_rgb(folder / "background.png", sim.get_sensor("mini-1").background(size))
     (folder / "split.json").write_text(json.dumps({"sensor": "mini-1-gel1", "count": spec.count}))

@@ -37,7 +37,8 @@ import cv2
 import numpy as np
 
 from ffjax import cli
-from ffjax.data.sources import BACKGROUND_NAME, CSV_NAME, write_rgb
+from ffjax.data.csv_source import CSV_NAME
+from ffjax.data.images import BACKGROUND_NAME, write_rgb
 from ffjax.files import atomic_write_text, folder_lock
 
 G = 9.81

@@ -33,7 +33,7 @@ import numpy as np
 from ffjax import cli, metrics, store
 from ffjax import data as fdata
 from ffjax.calibrate import core
-from ffjax.data.sources import write_rgb
+from ffjax.data.images import write_rgb
 from ffjax.files import atomic_write_json, check_output, folder_lock
 
 

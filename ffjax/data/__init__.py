@@ -8,6 +8,7 @@ statistics, and grain datasets.
     it = iter(ds); batch = next(it); state = it.get_state()  # it.set_state(state) resumes
 """
 
+from ffjax.data.csv_source import CsvSource
 from ffjax.data.pipeline import load_arrays, make_dataset
 from ffjax.data.preprocess import (
     depth_to_mm,
@@ -17,8 +18,10 @@ from ffjax.data.preprocess import (
     subtract_background,
     to_unit,
 )
-from ffjax.data.sources import CsvSource, DataError, ShardSource, open_split
+from ffjax.data.shards import ShardSource
+from ffjax.data.sources import open_split
 from ffjax.data.stats import Stats
+from ffjax.errors import DataError
 
 __all__ = [
     "CsvSource", "DataError", "ShardSource", "Stats", "depth_to_mm", "load_arrays", "make_dataset",

@@ -19,7 +19,9 @@ import numpy as np
 from tqdm import tqdm
 
 from ffjax import cli
-from ffjax.data.sources import BACKGROUND_NAME, CSV_NAME, open_split, write_rgb
+from ffjax.data.csv_source import CSV_NAME
+from ffjax.data.images import BACKGROUND_NAME, write_rgb
+from ffjax.data.sources import open_split
 from ffjax.files import atomic_write_text, check_output
 
 

@@ -84,7 +84,7 @@ def image_problem(path: Path, want_hw: tuple[int, int] | None, what: str = "tact
     w, h = struct.unpack(">II", head[16:24])
     if want_hw is not None and (h, w) != tuple(want_hw):
         return f"{what} {path} is {h}x{w} px, the background is {want_hw[0]}x{want_hw[1]} px"
-    if len(head) == 26 and head[24] == 16:  # the same refusals as sources.read_rgb, from the header
+    if len(head) == 26 and head[24] == 16:  # the same refusals as images.read_rgb, from the header
         return f"{what} {path} has uint16 pixels, not 8-bit: convert it to 8 bits per channel first"
     if len(head) == 26 and head[25] in (0, 4):  # PNG colour types: grayscale, grayscale + alpha
         return f"{what} {path} is grayscale: this model reads colour (RGB) frames of a tactile sensor"

@@ -43,7 +43,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ffjax import sim
-from ffjax.data.sources import write_rgb
+from ffjax.data.images import write_rgb
 from ffjax.files import atomic_write, atomic_write_text, check_writable
 from ffjax.sim.sensors import MINI_NAMES, SENSOR_NAMES, get_sensor
 

@@ -33,7 +33,7 @@ from flax import serialization
 import configs
 from ffjax import models, registry
 from ffjax.data import stats as data_stats
-from ffjax.data.sources import read_rgb
+from ffjax.data.images import read_rgb
 from ffjax.errors import CheckpointError
 from ffjax.files import atomic_write_bytes, check_output, read_json, sha256_bytes
 from ffjax.store import checkpoints, converted, model_json

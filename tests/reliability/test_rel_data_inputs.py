@@ -116,7 +116,7 @@ def test_an_alpha_channel_is_dropped(tmp_path):
     rgba = np.zeros((H, W, 4), np.uint8)
     rgba[..., 0], rgba[..., 1], rgba[..., 2], rgba[..., 3] = 10, 20, 30, 255  # BGRA on disk
     cv2.imwrite(str(tmp_path / "a.png"), rgba)
-    assert (data.sources.read_rgb(tmp_path / "a.png") == [30, 20, 10]).all()
+    assert (data.images.read_rgb(tmp_path / "a.png") == [30, 20, 10]).all()
 
 
 def test_load_time_errors_name_row_and_file(split):

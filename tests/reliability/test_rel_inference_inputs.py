@@ -144,7 +144,7 @@ def test_bundle_and_sensor_json_record_the_reference(tmp_path):
 
 
 def test_background_png_beside_a_bundle_is_the_reference(tmp_path):
-    from ffjax.data.sources import write_rgb
+    from ffjax.data.images import write_rgb
 
     store.save_bundle(tmp_path / "cal", tiny_checkpoint(None))  # what ffjax.calibrate writes, roughly
     write_rgb(tmp_path / "cal" / "background.png", sensor_bg("digit"))

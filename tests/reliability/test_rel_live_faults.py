@@ -124,8 +124,8 @@ def test_none_frames_skipped_and_bad_frames_flagged(pred):
 def test_cli_exits_3_with_the_csv_written(ckpt, tmp_path, monkeypatch, capsys):
     store.save_bundle(tmp_path / "model", ckpt)
     dev = FakeDevice("f" * 6)
-    monkeypatch.setattr(live.cv2, "VideoCapture", dev.open)
-    monkeypatch.setattr(live.time, "sleep", dev.waits.append)
+    monkeypatch.setattr(live.sources.cv2, "VideoCapture", dev.open)
+    monkeypatch.setattr(live.sources.time, "sleep", dev.waits.append)
     code = live.main(["--checkpoint", str(tmp_path / "model"), "--camera", "0", "--headless", "--out",
                       str(tmp_path / "out"), "--warmup", "0", "--bg-frames", "1", "--print-every", "0",
                       "--max-drops", "2", "--reconnects", "2", "--reconnect-wait", "0.1"])

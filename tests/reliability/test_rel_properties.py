@@ -265,7 +265,7 @@ finite32 = st.floats(-1e6, 1e6, allow_nan=False, width=32)
        pad=st.sampled_from(["", " ", "  "]))
 def test_ft_cells_parse(values, sep, fmt, pad):
     cell = pad + sep.join(fmt.format(v) for v in values) + pad
-    force = data.sources.parse_ft(cell, "x.csv row 0 (line 2)")
+    force = data.csv_source.parse_ft(cell, "x.csv row 0 (line 2)")
     assert force.shape == (3,) and force.dtype == np.float32
     np.testing.assert_allclose(force, np.float32([float(fmt.format(v)) for v in values[:3]]), rtol=1e-6)
 
@@ -277,14 +277,14 @@ def test_ft_cells_with_a_bad_value_are_refused_by_name(values, i, bad):
     parts = [f"{v:.9g}" for v in values]
     parts[i] = bad
     with pytest.raises(data.DataError, match=rf"^x\.csv line 9: FT cell .*{validate.FT_NAMES[i]}"):
-        data.sources.parse_ft(" ".join(parts), "x.csv line 9")
+        data.csv_source.parse_ft(" ".join(parts), "x.csv line 9")
 
 
 @FAST
 @given(cell=st.text(max_size=40))
 def test_ft_cells_from_any_text_parse_or_raise_data_error(cell):
     try:
-        force = data.sources.parse_ft(cell, "x.csv line 2")
+        force = data.csv_source.parse_ft(cell, "x.csv line 2")
     except data.DataError as e:
         assert str(e).startswith("x.csv line 2: FT cell")
     else:

@@ -1,8 +1,9 @@
 """Smoothing filters for force streams (off by default; for control loops that want less jitter).
 
-    f = live_filters.parse("ema:0.3")                       # y = a*x + (1-a)*y_prev, a in (0, 1]
-    f = live_filters.parse("one-euro:1.0,0.05")             # min_cutoff Hz, beta [, d_cutoff Hz]
-    f = live_filters.parse("one-euro:min_cutoff=1,beta=0.05,d_cutoff=1")
+    from ffjax.live import filters
+    f = filters.parse("ema:0.3")                            # y = a*x + (1-a)*y_prev, a in (0, 1]
+    f = filters.parse("one-euro:1.0,0.05")                  # min_cutoff Hz, beta [, d_cutoff Hz]
+    f = filters.parse("one-euro:min_cutoff=1,beta=0.05,d_cutoff=1")
     y = f(t_seconds, force_xyz)                             # per axis; f.reset() forgets the past
 
 EMA lags by about (1 - a) / a frames at every speed. One-Euro (Casiez et al., CHI 2012) adapts its cutoff

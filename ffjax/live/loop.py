@@ -1,0 +1,188 @@
+"""The live loop, `run(pred, frames, ...)`: the background taken from the stream (re-taken on key 'b' or
+SIGUSR1), every frame predicted and flagged, optionally smoothed, printed, shown, and recorded to
+forces.csv / annotated.mp4 (an earlier recording in the folder is kept aside as forces.1.csv, ...)."""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import signal
+import threading
+import time
+import warnings
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ffjax import inference
+from ffjax.files import folder_lock
+from ffjax.live.sources import CameraLost
+from ffjax.live.view import Window, annotate
+
+
+def resizer(spec, pred):
+    """frame -> frame at `spec` ("HxW", or "auto": the checkpoint's frame size); unchanged when spec is empty."""
+    if not spec:
+        return lambda f: f
+    h, w = pred.frame_size if spec == "auto" else (int(v) for v in spec.lower().split("x"))
+
+    def fn(frame):
+        if frame.shape[:2] == (h, w):
+            return frame
+        interp = cv2.INTER_AREA if frame.shape[0] > h else cv2.INTER_LINEAR
+        return cv2.resize(frame, (w, h), interpolation=interp)
+
+    return fn
+
+
+def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=None, warmup=0, bg_frames=1,
+        background=None, fps_cap=None, print_every=1, max_frames=None, resize=None, log=print) -> dict:
+    """Drive `pred` over `frames` (iterable of (t, rgb, label)); returns a summary dict.
+
+    Frames before `warmup` are dropped; the next `bg_frames` are averaged into the background (unless
+    `background` is given) and then predicted like every later frame. A None/empty frame is skipped and
+    counted; a CameraLost from the source ends the loop cleanly (summary "stopped": "camera_lost", "error").
+    Dark, saturated or background-mismatched frames are still predicted, logged when the issue starts, and
+    counted in summary "flagged". forces.csv is line-buffered, so a crash or kill loses at most one row."""
+    resize_fn = resizer(resize, pred)
+    retake = {"flag": background is None}
+    if background is not None:
+        pred.set_background(background)
+    old = None
+    if headless and hasattr(signal, "SIGUSR1") and threading.current_thread() is threading.main_thread():
+        def _on_usr1(signum, frame):
+            retake["flag"] = True
+        old = signal.signal(signal.SIGUSR1, _on_usr1)
+    window = None if headless else Window()
+    writer, csv_file, rows = None, None, None
+    out = Path(out) if out is not None else None
+    lock = contextlib.ExitStack()
+    n_done, n_oor, skipped, pending = 0, 0, 0, []
+    lat, rate, t_start, t_prev, t_first = [], None, time.perf_counter(), None, None
+    empty, flagged, last_issue, stopped, error = 0, {}, "", "end", None
+    try:
+        for t, frame, label in frames:
+            loop_t0 = time.perf_counter()
+            if frame is None or np.size(frame) == 0:  # a source that yields its failed reads: skip, count
+                empty += 1
+                continue
+            if skipped < warmup and pred.background is None:
+                skipped += 1
+                continue
+            frame = resize_fn(frame)
+            if retake["flag"]:
+                pending.append((t, frame, label))
+                if len(pending) < bg_frames:
+                    continue
+                bg = np.mean([p[1] for p in pending], axis=0).round().astype(np.uint8)
+                pred.set_background(bg)
+                retake["flag"] = False
+                if smoother is not None:
+                    smoother.reset()
+                log(f"background taken from {len(pending)} frame(s)")
+                todo, pending = pending, []
+            else:
+                todo = [(t, frame, label)]
+            for t_i, f_i, lab in todo:
+                p0 = time.perf_counter()
+                with warnings.catch_warnings():  # reported per frame below (out_of_range column, flag log)
+                    warnings.simplefilter("ignore", inference.ForceRangeWarning)
+                    warnings.simplefilter("ignore", inference.FrameWarning)
+                    warnings.simplefilter("ignore", inference.NonFiniteWarning)
+                    raw = pred.predict(f_i)[0]
+                lat.append(time.perf_counter() - p0)
+                oor = bool(pred.last_out_of_range[0])
+                issue = str(pred.last_frame_issues[0])
+                if pred.last_nonfinite[0]:
+                    issue = "non-finite force (corrupt weights or input)"
+                if issue:
+                    flagged[issue] = flagged.get(issue, 0) + 1
+                if issue != last_issue:  # log changes only: a covered lens for a minute is two lines
+                    log(f"frame {lab}: " + (f"{issue} (forces unreliable)" if issue else f"{last_issue} cleared"))
+                    last_issue = issue
+                # a NaN fed to a filter would poison every later frame: NaN frames pass through unfiltered
+                force = smoother(t_i, raw) if smoother is not None and np.isfinite(raw).all() else raw
+                n_done += 1
+                n_oor += oor
+                now = time.perf_counter()
+                t_first = now if t_first is None else t_first
+                if t_prev is not None:
+                    inst = 1.0 / max(now - t_prev, 1e-9)
+                    rate = inst if rate is None else 0.9 * rate + 0.1 * inst
+                t_prev = now
+                if out is not None and rows is None:
+                    # opened at the first prediction, not before: a source that fails to open leaves an
+                    # earlier run's files as they were (and a new run moves them aside, never truncates);
+                    # one live loop per --out (a second would move the first's files aside mid-run)
+                    lock.enter_context(folder_lock(out, "live recording"))
+                    # line-buffered: a kill loses at most one row
+                    csv_file = open(_keep_old(out / "forces.csv", log), "w", newline="", buffering=1)
+                    rows = csv.writer(csv_file)
+                    rows.writerow(["t", "fx", "fy", "fz", "out_of_range", "frame"]
+                                  + (["fx_raw", "fy_raw", "fz_raw"] if smoother else []))
+                if rows is not None:
+                    rows.writerow([f"{t_i:.4f}", *(f"{v:.5f}" for v in force), int(oor), lab]
+                                  + ([f"{v:.5f}" for v in raw] if smoother else []))
+                if print_every and n_done % print_every == 0:
+                    log(f"t={t_i:9.3f}s  Fx={force[0]:+7.3f}  Fy={force[1]:+7.3f}  Fz={force[2]:+7.3f} N"
+                        + ("  [NON-FINITE]" if pred.last_nonfinite[0] else "  [OUT OF RANGE]" if oor else "")
+                        + (f"  {rate:6.1f} Hz" if rate else ""))
+                if out is not None or window is not None:
+                    vis = annotate(f_i, force, pred.force_min, pred.force_max, oor, rate)
+                    if out is not None:
+                        if writer is None:
+                            writer = cv2.VideoWriter(str(_keep_old(out / "annotated.mp4", log)),
+                                                     cv2.VideoWriter_fourcc(*"mp4v"),
+                                                     float(fps_cap or 25.0), (vis.shape[1], vis.shape[0]))
+                        writer.write(vis)
+                    if window is not None:
+                        key = window.show(vis)
+                        if key in (ord("q"), 27):
+                            raise KeyboardInterrupt
+                        if key == ord("b"):
+                            retake["flag"] = True
+            if max_frames is not None and n_done >= max_frames:
+                stopped = "max_frames"
+                break
+            if fps_cap:
+                time.sleep(max(0.0, 1.0 / fps_cap - (time.perf_counter() - loop_t0)))
+    except KeyboardInterrupt:
+        stopped = "interrupted"
+    except CameraLost as e:  # the source gave up reconnecting: stop here, everything so far is written
+        stopped, error = "camera_lost", str(e)
+        log(f"stopping: {e}")
+    finally:
+        if writer is not None:
+            writer.release()
+        if csv_file is not None:
+            csv_file.close()
+        lock.close()
+        if window is not None:
+            window.close()
+        if old is not None:
+            signal.signal(signal.SIGUSR1, old)
+    wall = time.perf_counter() - t_start
+    # the rate from the first prediction on: the first frame pays the one-off compile
+    rate_hz = (n_done - 1) / (t_prev - t_first) if n_done > 1 and t_prev > t_first else 0.0
+    summary = {"frames": n_done, "out_of_range": n_oor, "wall_s": wall, "rate_hz": rate_hz,
+               "predict_ms_median": 1e3 * float(np.median(lat)) if lat else None,
+               "background_taken": pred.background is not None, "stopped": stopped, "error": error,
+               "dropped": empty + int(getattr(frames, "dropped", 0)),
+               "reconnects": int(getattr(frames, "reconnected", 0)),
+               "flagged": flagged}
+    if n_done == 0 and pred.background is None:
+        log("no frame was predicted: the source ended before a background was taken "
+            f"(warmup {warmup}, bg-frames {bg_frames})")
+    return summary
+
+
+def _keep_old(path: Path, log=print) -> Path:
+    """`path`, after moving an existing file there to the first free `stem.N.suffix` (said in the log)."""
+    if path.exists():
+        n = 1
+        while (old := path.with_name(f"{path.stem}.{n}{path.suffix}")).exists():
+            n += 1
+        path.rename(old)
+        log(f"kept the previous {path.name} as {old.name}")
+    return path

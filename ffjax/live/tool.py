@@ -1,0 +1,115 @@
+"""Live force view: a camera (or a video / folder of frames) in, forces out.
+
+    python -m ffjax.live --checkpoint RUN --camera 0                    # window with arrow + Fz bar
+    python -m ffjax.live --checkpoint RUN --camera 0 --headless --out log/   # robots without a screen
+    python -m ffjax.live --checkpoint RUN --video press.mp4 --out out/  # -> out/forces.csv, out/annotated.mp4
+    python -m ffjax.live --checkpoint RUN --images frames/ --out out/ --background frames/bg.png
+
+GelSight Mini and DIGIT appear as ordinary video devices (--camera N is cv2.VideoCapture(N)). Frames are
+converted from OpenCV's BGR to RGB before prediction. The background (no-contact frame) is the mean of
+--bg-frames frames taken after --warmup frames (cameras need a moment to settle exposure), or --background
+FILE. Re-take it with key 'b' in the window, or with `kill -USR1 <pid>` when headless: keep the sensor
+untouched meanwhile. 'q' / Esc quits; so does Ctrl-C.
+
+Each frame prints `t  Fx Fy Fz  [OUT OF RANGE]  rate` (every --print-every frames). With --out: forces.csv
+(t, fx, fy, fz, out_of_range, frame; raw fx_raw.. columns too when --smooth is on) and annotated.mp4
+(mp4v). t is seconds since start for a camera, the video's timestamp for --video, frame / --fps
+(default 25) for --images. --fps caps the loop rate (sleeps); --smooth adds an EMA or One-Euro filter
+(see ffjax.live.filters). --resize HxW|auto resizes frames (auto: the checkpoint's frame size).
+
+Camera faults: a failed read (dropped frame) is skipped and counted; --max-drops (30) failed reads in a row,
+or a read that raises, count as a disconnect: the camera is re-opened up to --reconnects (5) times, waiting
+--reconnect-wait (0.5 s) doubling to at most 8 s. If that fails the loop stops, forces.csv (line-buffered)
+and annotated.mp4 are closed, the reason is printed, and the exit code is 3. Dark, saturated or
+background-mismatched frames are predicted but logged when the condition starts and ends; the closing
+summary counts drops, reconnects and flagged frames.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ffjax import inference
+from ffjax.data.images import read_rgb
+from ffjax.files import check_output
+from ffjax.live import filters
+from ffjax.live.loop import resizer, run
+from ffjax.live.sources import camera_frames, image_frames, video_frames
+
+
+def _fmt(v) -> str:
+    return "(" + ", ".join(f"{float(x):.2f}" for x in v) + ")"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m ffjax.live", description=__doc__.splitlines()[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog="\n".join(__doc__.splitlines()[1:]))
+    p.add_argument("--checkpoint", required=True, help="training run, calibrated or converted folder")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--camera", type=int, help="video device index (cv2.VideoCapture)")
+    src.add_argument("--video", help="a video file")
+    src.add_argument("--images", help="a folder of frames (sorted by name)")
+    p.add_argument("--out", help="folder for forces.csv and annotated.mp4")
+    p.add_argument("--headless", action="store_true", help="no window (SIGUSR1 re-takes the background)")
+    p.add_argument("--background", help="no-contact frame image file (else captured from the stream)")
+    p.add_argument("--warmup", type=int, default=None, help="frames to drop first (camera 30, files 0)")
+    p.add_argument("--bg-frames", type=int, default=None, help="frames averaged into the background "
+                   "(camera 10, files 1)")
+    p.add_argument("--smooth", default=None, help="ema:ALPHA or one-euro:MIN_CUTOFF,BETA[,D_CUTOFF]; off by "
+                   "default")
+    p.add_argument("--fps", type=float, default=None, help="cap the loop rate (and the --images timebase)")
+    p.add_argument("--resize", default=None, help="HxW or 'auto' (the checkpoint's frame size)")
+    p.add_argument("--frame-size", default=None, help="HxW the checkpoint expects, if it does not say")
+    p.add_argument("--max-frames", type=int, default=None, help="stop after this many predictions")
+    p.add_argument("--print-every", type=int, default=1, help="print every Nth frame (0: never)")
+    p.add_argument("--which", default="best", choices=("best", "latest"))
+    cam = p.add_argument_group("camera faults (--camera)")
+    cam.add_argument("--max-drops", type=int, default=30, help="failed reads in a row that count as a "
+                     "disconnect (single failed reads are skipped and counted)")
+    cam.add_argument("--reconnects", type=int, default=5, help="re-open attempts per disconnect before exiting")
+    cam.add_argument("--reconnect-wait", type=float, default=0.5, help="seconds before the first re-open; "
+                     "doubles per attempt, at most 8 s")
+    return p
+
+
+def main(argv=None) -> int:
+    a = build_parser().parse_args(argv)
+    if a.out:  # recordings already there are kept aside, never replaced; but never inside what is read
+        check_output(a.out, reads=[a.checkpoint, a.images], force=True)
+    fs = tuple(int(v) for v in a.frame_size.lower().split("x")) if a.frame_size else None
+    pred = inference.load(a.checkpoint, a.which, frame_size=fs)
+    smoother = filters.parse(a.smooth)
+    background = None
+    if a.background:
+        background = resizer(a.resize, pred)(read_rgb(a.background, "background"))
+    if a.camera is not None:
+        frames = camera_frames(a.camera, max_drops=a.max_drops, reconnects=a.reconnects, backoff=a.reconnect_wait,
+                               log=lambda m: print(m, file=sys.stderr, flush=True))
+        warmup, bg_frames = 30, 10
+    elif a.video:
+        frames, warmup, bg_frames = video_frames(a.video), 0, 1
+    else:
+        excl = [a.background] if a.background else []
+        frames, warmup, bg_frames = image_frames(a.images, a.fps or 25.0, excl), 0, 1
+    warmup = warmup if a.warmup is None else a.warmup
+    bg_frames = max(1, bg_frames if a.bg_frames is None else a.bg_frames)
+    print(f"ffjax.live: {pred.method} ({pred.trained.kind}), frames {pred.frame_size[0]}x{pred.frame_size[1]} "
+          f"RGB, training force range {_fmt(pred.force_min)}..{_fmt(pred.force_max)} N"
+          + (f", filter {smoother!r}" if smoother else ""), flush=True)
+    summary = run(pred, frames, out=a.out, headless=a.headless, smoother=smoother, warmup=warmup,
+                  bg_frames=bg_frames, background=background, fps_cap=a.fps, print_every=a.print_every,
+                  max_frames=a.max_frames, resize=a.resize, log=lambda s: print(s, flush=True))
+    print(f"{summary['frames']} frames in {summary['wall_s']:.1f} s ({summary['rate_hz']:.1f} Hz after the first), "
+          f"model {summary['predict_ms_median'] or 0:.2f} ms/frame median, "
+          f"{summary['out_of_range']} out of range" + (f"; wrote {a.out}/forces.csv" if a.out else ""))
+    faults = [f"{summary['dropped']} dropped frames"] * bool(summary["dropped"]) + \
+        [f"{summary['reconnects']} reconnects"] * bool(summary["reconnects"]) + \
+        [f"{n} {k}" for k, n in summary["flagged"].items()]
+    if faults:
+        print("faults: " + ", ".join(faults), flush=True)
+    if summary["stopped"] == "camera_lost":
+        print(f"error: {summary['error']}; forces up to the loss are in the CSV", file=sys.stderr, flush=True)
+        return 3
+    return 0 if summary["frames"] else 1
