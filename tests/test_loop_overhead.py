@@ -10,8 +10,8 @@ from _tiny_data import write_tiny_dataset
 import configs
 from ffjax import data as fdata
 from ffjax import train
-from ffjax.store import checkpoints as ckpt_lib
-from ffjax.train import loop as loop_lib
+from ffjax.store import checksums
+from ffjax.train import run_log
 from ffjax.train import step as step_lib
 
 METHOD = "dino_rd"  # has the regressor's feature_norm: validation refreshes it from training frames
@@ -32,7 +32,7 @@ def test_splits_preprocessed_once_and_nothing_compiles_after_step_1(tiny_data, t
 
     monkeypatch.setattr(fdata, "load_arrays", counting_load)
     monkeypatch.setattr(fdata.pipeline, "load_arrays", counting_load)
-    programs = (step_lib.train_step, step_lib.eval_step, step_lib.feature_step, ckpt_lib._leaf_sums)
+    programs = (step_lib.train_step, step_lib.eval_step, step_lib.feature_step, checksums._leaf_sums)
     seen = {}
 
     def at_step_1(step, state):
@@ -53,5 +53,5 @@ def test_lagged_log_read_logs_every_step_once_in_order(tiny_data, tmp_path):
     # batch 1: 32 steps an epoch, so the 25-step log interval falls inside an epoch and reads all but step 25
     cfg = configs.get("smoke", {"train.epochs": 1, "train.batch_size": 1, "train.ckpt_every": 100})
     train.train(cfg, METHOD, tiny_data, tmp_path, progress=False)
-    rows = [json.loads(r) for r in open(tmp_path / loop_lib.LOG_NAME)]
+    rows = [json.loads(r) for r in open(tmp_path / run_log.LOG_NAME)]
     assert [r["step"] for r in rows if r["kind"] == "train"] == list(range(1, 33))

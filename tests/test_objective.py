@@ -23,8 +23,7 @@ from _tiny_data import write_tiny_dataset
 import configs
 from ffjax import registry, store, train
 from ffjax.registry import Method
-from ffjax.train import loop as loop_lib
-from ffjax.train import objective
+from ffjax.train import objective, run_log
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,7 +34,7 @@ def tiny_data(tmp_path_factory):
 
 
 def test_the_default_objective_keeps_the_csv_columns_users_read():
-    fields = loop_lib.csv_fields(objective.Objective.of(registry.get("dino_rd")))
+    fields = run_log.csv_fields(objective.Objective.of(registry.get("dino_rd")))
     assert fields == ("epoch", "step", "train_loss", "train_force_l1", "val_loss", "val_force_l1", "val_depth_mse",
                       "val_nl1", "val_nl1_fx", "val_nl1_fy", "val_nl1_fz", "val_mae_fx", "val_mae_fy",
                       "val_mae_fz", "time_s")
@@ -67,9 +66,9 @@ def test_a_new_term_is_one_entry(tiny_data, tmp_path, monkeypatch):
 
     run = train.train(cfg, spec, tiny_data, tmp_path, progress=False)
     assert "fz_l1" in run["val"] and np.isfinite(run["val"]["fz_l1"])  # validation
-    rows = [json.loads(r) for r in open(tmp_path / loop_lib.LOG_NAME)]
+    rows = [json.loads(r) for r in open(tmp_path / run_log.LOG_NAME)]
     assert all("fz_l1" in r for r in rows)  # every train and val row of the log
-    with open(tmp_path / loop_lib.CSV_NAME) as f:
+    with open(tmp_path / run_log.CSV_NAME) as f:
         epochs = list(csv.DictReader(f))
     assert {"train_fz_l1", "val_fz_l1"} <= set(epochs[0]) and len(epochs) == 2
     assert float(epochs[-1]["val_fz_l1"]) == pytest.approx(run["val"]["fz_l1"])

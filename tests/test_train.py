@@ -218,6 +218,6 @@ def test_functions_in_ffjax_train_stay_short():
 
     root = Path(train.__file__).parent
     long = [f"{path.name}:{node.name} ({node.end_lineno - node.lineno + 1} lines)"
-            for path in sorted(root.glob("*.py")) for node in ast.walk(ast.parse(path.read_text()))
+            for path in sorted(root.rglob("*.py")) for node in ast.walk(ast.parse(path.read_text()))
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= 80]
     assert not long, long

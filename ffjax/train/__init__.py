@@ -12,7 +12,8 @@ The objective (the loss terms, each declared once) lives in `ffjax.train.objecti
 Pretraining (self-supervised backbones) lives in `ffjax.train.pretrain`.
 """
 
-from ffjax.train.loop import NonFiniteLossError, open_sources, train, validate
+from ffjax.train.loop import open_sources, train
+from ffjax.train.nonfinite import NonFiniteLossError
 from ffjax.train.state import (
     Labeler,
     TrainState,
@@ -23,6 +24,7 @@ from ffjax.train.state import (
     replace_backbone,
 )
 from ffjax.train.step import TRACE_COUNT, eval_step, make_mesh, replicate, shard_batch, train_step
+from ffjax.train.validation import validate
 
 __all__ = [
     "TRACE_COUNT",

@@ -12,19 +12,14 @@ point loses at most the steps since the last complete checkpoint: checkpoints ar
 ones and renamed when complete, and every JSON/CSV file is replaced atomically (a torn last log line is
 dropped on resume).
 
-Non-finite steps: the jitted step never applies an update whose loss or gradient norm is NaN/inf; the loop
-reads those metrics at its existing sync points (every log interval and before every checkpoint), so no
-checkpoint ever holds a bad step and the error names the exact step. train.nonfinite = "stop" (default)
-raises NonFiniteLossError naming the step and the batch's record indices; "skip" drops those updates,
-counts them and goes on.
+Non-finite steps (train.nonfinite; ffjax.train.nonfinite): the loop reads every step's loss and gradient norm at
+its sync points (each log interval, before every checkpoint), so no checkpoint ever holds a bad step.
 """
 
 from __future__ import annotations
 
 import contextlib
-import csv
 import dataclasses
-import io
 import json
 import math
 import os
@@ -33,47 +28,23 @@ import warnings
 from collections.abc import Callable
 from pathlib import Path
 
-import grain
 import jax
-import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
 from ffjax import data as fdata
-from ffjax import metrics as fmetrics
 from ffjax import registry, store
-from ffjax.data import load_arrays
-from ffjax.data.pipeline import fits_in_memory
 from ffjax.errors import CheckpointError
 from ffjax.files import atomic_write_text, check_writable, folder_lock
 from ffjax.models import output_affine
 from ffjax.store import model_json
 from ffjax.store.checkpoints import Checkpointer
+from ffjax.train import nonfinite, validation
+from ffjax.train.run_log import RunLog, csv_fields, val_columns
 from ffjax.train.state import init_state
-from ffjax.train.step import eval_step, feature_step, make_mesh, replicate, shard_batch, train_step
+from ffjax.train.step import make_mesh, replicate, shard_batch, train_step
 
-LOG_NAME, CSV_NAME, SUMMARY_NAME = "train_log.jsonl", "epochs.csv", "summary.json"
-
-
-def csv_fields(objective) -> tuple[str, ...]:
-    """epochs.csv's columns: the epoch's train means (loss, and each objective term with a train column), its
-    validation (loss, each term, the force metric per axis), and the elapsed time."""
-    return (
-        "epoch",
-        "step",
-        "train_loss",
-        *(f"train_{t.name}" for t in objective.terms if t.train_column),
-        "val_loss",
-        *(f"val_{name}" for name in objective.names),
-        "val_nl1",
-        "val_nl1_fx",
-        "val_nl1_fy",
-        "val_nl1_fz",
-        "val_mae_fx",
-        "val_mae_fy",
-        "val_mae_fz",
-        "time_s",
-    )
+SUMMARY_NAME = "summary.json"
 
 
 def with_output_affine(cfg: dict, stats) -> dict:
@@ -87,20 +58,6 @@ def with_output_affine(cfg: dict, stats) -> dict:
         return cfg
     cfg = {**cfg, "model": {**cfg["model"], "regressor": {**rc, **output_affine(stats.force_min, stats.force_max)}}}
     return cfg
-
-
-class NonFiniteLossError(FloatingPointError):
-    """Raised when a training loss or gradient is NaN/inf; the run folder keeps its last good checkpoint."""
-
-
-NONFINITE_MODES = ("stop", "skip")
-
-
-def batch_records(n: int, seed: int, batch_size: int, step: int) -> list[int]:
-    """Indices into the train split of the batch that step `step` (1-based) trained on: the shuffled,
-    repeated order make_dataset draws (one process), rebuilt only when an error needs to name it."""
-    ds = grain.MapDataset.range(n).shuffle(seed=seed).repeat(None).batch(batch_size, drop_remainder=True)
-    return [int(i) for i in ds[step - 1]]
 
 
 def open_sources(data_arg):
@@ -117,170 +74,6 @@ def open_sources(data_arg):
         return _open(data_arg["train"]), (_open(data_arg["val"]) if data_arg.get("val") is not None else None)
     train_src, val_src = data_arg
     return _open(train_src), (_open(val_src) if val_src is not None else None)
-
-
-class _Split:
-    """A split for the ordered passes of evaluation (validation, feature statistics): preprocessed into memory
-    once when it fits the in-memory budget (the rule make_dataset follows), so no pass re-reads or
-    re-preprocesses a record; streamed per pass otherwise."""
-
-    def __init__(self, source, stats, input_size: int):
-
-        self.source, self.stats, self.input_size = source, stats, input_size
-        self.arrays = load_arrays(source, stats, input_size) if fits_in_memory(len(source), input_size) else None
-
-    def batches(self, batch_size: int):
-        """Every record once, in order; the last batch may be short (as metrics.iterate_once)."""
-        if self.arrays is None:
-            yield from fmetrics.iterate_once(self.source, self.stats, self.input_size, batch_size)
-            return
-        for a in range(0, len(self.arrays["force"]), batch_size):
-            yield {k: v[a: a + batch_size] for k, v in self.arrays.items()}
-
-
-def _eval_batch(batch: dict, batch_size: int, mesh) -> dict:
-    """A validation batch padded to the compiled size, with a mask over its real rows, on the mesh."""
-    n = len(batch["force"])
-    padded = {k: _pad(np.asarray(v), batch_size) for k, v in batch.items()}
-    padded["mask"] = (np.arange(batch_size) < n).astype(np.float32)
-    return shard_batch(padded, mesh)
-
-
-def validate(state, val_src, stats, input_size: int, batch_size: int, mesh) -> dict:
-    """Total/force/depth validation loss plus the force metric (normalized by the TRAIN force range)."""
-    return _validate(state, _Split(val_src, stats, input_size), batch_size, mesh)
-
-
-def _validate(state, split: _Split, batch_size: int, mesh) -> dict:
-    sums, count, preds, trues = dict.fromkeys(("loss", *state.objective.names), 0.0), 0, [], []
-    for batch in split.batches(batch_size):
-        n = len(batch["force"])
-        m = jax.device_get(eval_step(state, _eval_batch(batch, batch_size, mesh)))
-        for k in sums:
-            sums[k] += float(m[k]) * n
-        count += n
-        preds.append(np.asarray(m["force"])[:n])
-        trues.append(np.asarray(batch["force"]))
-    out = {k: v / max(count, 1) for k, v in sums.items()}
-    lo, hi = split.stats.force_min, split.stats.force_max
-    out.update(fmetrics.summarize(np.concatenate(preds), np.concatenate(trues), lo, hi))
-    return out
-
-
-def _has_feature_norm(state) -> bool:
-    return "feature_norm" in (state.batch_stats or {}).get("regressor", {})
-
-
-def _features(state, images, mesh):
-    return feature_step(state, shard_batch({"image": images}, mesh)["image"])
-
-
-def refresh_feature_norm(state, split: _Split, batch_size: int, mesh, max_samples: int = 2048):
-    """Set the regressor's feature-normalization statistics to the exact mean/variance of the backbone's
-    features over (up to max_samples) training frames, with the current weights; other states unchanged.
-
-    Training normalizes with batch statistics, so this changes no gradient. Evaluation uses the stored
-    statistics, and a running average cannot follow them: a ViT feature varies across images by ~1e-3 of
-    its constant part, which moves more than that with every update, so an average over past steps is off
-    by many standard deviations (measured: validation 28% with it, 4.1% with the batch's own statistics).
-    """
-    if not _has_feature_norm(state):
-        return state
-    reg, feats = state.batch_stats["regressor"], []
-    for batch in split.batches(batch_size):
-        if len(batch["image"]) < batch_size or len(feats) * batch_size >= max_samples:
-            break  # full batches only: one compiled shape
-        feats.append(np.asarray(jax.device_get(_features(state, batch["image"], mesh)), np.float64))
-    if not feats:
-        return state
-    f = np.concatenate(feats)
-    dtype = reg["feature_norm"]["mean"].dtype
-    new = {"mean": jnp.asarray(f.mean(0), dtype), "var": jnp.asarray(f.var(0), dtype)}
-    batch_stats = {**state.batch_stats, "regressor": {**reg, "feature_norm": new}}
-    return replicate(state.replace(batch_stats=batch_stats), mesh)
-
-
-def _compile_ahead(state, train_data: _Split, val_data: _Split | None, batch_size: int, mesh, ckpt) -> None:
-    """Compile every program the loop runs besides its step before step 1: evaluation, feature statistics
-    and the checkpoint checksums. Each takes seconds on a CPU; compiled at first use they stall training
-    mid-run (at the first validation, the first save). Run on real batches, so the shapes are exactly the
-    loop's; all are pure (nothing changes), and every complete run validates (given a val split) and saves."""
-    first = next(val_data.batches(batch_size), None) if val_data is not None else None
-    if first is not None:
-        jax.block_until_ready(eval_step(state, _eval_batch(first, batch_size, mesh)))
-    first = next(train_data.batches(batch_size))
-    if _has_feature_norm(state) and len(first["image"]) == batch_size:
-        jax.block_until_ready(_features(state, first["image"], mesh))
-    ckpt.compile_checksums(state)
-
-
-def _pad(x: np.ndarray, size: int) -> np.ndarray:
-    if len(x) == size:
-        return x
-    return np.concatenate([x, np.zeros((size - len(x), *x.shape[1:]), x.dtype)])
-
-
-class _Log:
-    """JSONL (every row) + CSV (one row per epoch); on resume rows past the restored step are dropped."""
-
-    def __init__(self, run_dir: Path, keep_until: int | None, fields: tuple[str, ...]):
-        self.jsonl, self.csv, self.fields = run_dir / LOG_NAME, run_dir / CSV_NAME, fields
-        if keep_until is None:
-            for p in (self.jsonl, self.csv):
-                p.unlink(missing_ok=True)
-        else:
-            self._truncate(keep_until)
-
-    def _truncate(self, step: int) -> None:
-        if self.jsonl.exists():
-            rows = [r for r in self.jsonl.read_text().splitlines() if (_json_step(r) or step + 1) <= step]
-            atomic_write_text(self.jsonl, "".join(r + "\n" for r in rows))
-        if self.csv.exists():
-            with self.csv.open() as f:
-                rows = [r for r in csv.DictReader(f) if _complete(r) and (_int(r.get("step")) or step + 1) <= step]
-            atomic_write_text(self.csv, _csv_text(rows, self.fields))
-
-    def row(self, row: dict) -> None:
-        with self.jsonl.open("a") as f:
-            f.write(json.dumps(row) + "\n")
-
-    def epoch(self, row: dict) -> None:
-        self._write_csv([row], "a")
-
-    def _write_csv(self, rows, mode: str) -> None:
-        if mode == "w" or not self.csv.exists():
-            atomic_write_text(self.csv, _csv_text(rows, self.fields))
-            return
-        with self.csv.open("a", newline="") as f:
-            csv.DictWriter(f, fieldnames=self.fields, extrasaction="ignore").writerows(rows)
-
-
-def _csv_text(rows, fields) -> str:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
-    w.writeheader()
-    w.writerows(rows)
-    return buf.getvalue()
-
-
-def _json_step(line: str):
-    """A log line's step, or None for a line a kill cut short (dropped on resume)."""
-    try:
-        return int(json.loads(line)["step"])
-    except (ValueError, KeyError, TypeError):
-        return None
-
-
-def _complete(row: dict) -> bool:
-    """False for a CSV row a kill cut short (fields missing) or garbled (extra fields)."""
-    return None not in row and all(v is not None for v in row.values())
-
-
-def _int(text):
-    try:
-        return int(text)
-    except (TypeError, ValueError):
-        return None
 
 
 def train(cfg: dict, spec, data, out_dir, resume: bool = False, init_backbone: tuple | None = None,
@@ -313,8 +106,8 @@ def _open_run(cfg, spec, data, run_dir: Path, resume, init_backbone, init_variab
     """Everything before step 1: sources, statistics (the run's own on resume), model.json, the state (restored
     on resume), the data iterator, the log, and every program besides the step compiled."""
     tc = cfg["train"]
-    if tc["nonfinite"] not in NONFINITE_MODES:
-        raise ValueError(f"train.nonfinite must be one of {NONFINITE_MODES}, got {tc['nonfinite']!r}")
+    if tc["nonfinite"] not in nonfinite.MODES:
+        raise ValueError(f"train.nonfinite must be one of {nonfinite.MODES}, got {tc['nonfinite']!r}")
     input_size, bs = int(cfg["data"]["input_size"]), int(tc["batch_size"])
     train_src, val_src = open_sources(data)
     steps_per_epoch = len(train_src) // bs
@@ -340,19 +133,19 @@ def _open_run(cfg, spec, data, run_dir: Path, resume, init_backbone, init_variab
     check_writable(run_dir, 4 * sum(int(np.asarray(x).nbytes) for x in jax.tree.leaves(state.arrays())))
     state = replicate(state, mesh)
     # each split preprocessed once: the training batches, feature statistics and validation all read these
-    train_data = _Split(train_src, stats, input_size)
-    val_data = _Split(val_src, stats, input_size) if val_src is not None else None
+    train_data = validation.Split(train_src, stats, input_size)
+    val_data = validation.Split(val_src, stats, input_size) if val_src is not None else None
     it = iter(fdata.make_dataset(train_src, stats, input_size, bs, seed=int(cfg["seed"]), shuffle=True,
                                  arrays=train_data.arrays))
     meta = _new_meta(state.objective)
     if restoring:
         state, meta = _restore(ckpt, state, meta, it, mesh)
     start = int(jax.device_get(state.step))
-    log = _Log(run_dir, start if resume else None, csv_fields(state.objective))
+    log = RunLog(run_dir, start if resume else None, csv_fields(state.objective))
     if start < total:
-        _compile_ahead(state, train_data, val_data, bs, mesh, ckpt)
-    return _Run(run_dir, cfg, spec, stats, ckpt, mesh, state, it, train_data, val_data, log, meta, len(train_src),
-                bs, steps_per_epoch, total, start)
+        validation.compile_ahead(state, train_data, val_data, bs, mesh, ckpt)
+    return _Run(run_dir=run_dir, cfg=cfg, spec=spec, stats=stats, ckpt=ckpt, mesh=mesh, state=state, meta=meta,
+                log=log, data=_Data(it, train_data, val_data), plan=_Plan(bs, steps_per_epoch, total, start))
 
 
 def _resumed_stats(ckpt, run_dir: Path, cfg: dict, spec):
@@ -404,6 +197,26 @@ def _restore(ckpt, state, meta: dict, it, mesh):
     return state, saved
 
 
+@dataclasses.dataclass(frozen=True)
+class _Plan:
+    """How far a run goes: its batch size, steps per epoch, last step and the step it starts from."""
+
+    batch_size: int
+    steps_per_epoch: int
+    total: int
+    start: int
+
+
+@dataclasses.dataclass(frozen=True)
+class _Data:
+    """A run's training batches (a grain iterator; its position is checkpointed) and both splits, preprocessed
+    once, for the evaluation passes."""
+
+    it: object
+    train: validation.Split
+    val: validation.Split | None
+
+
 @dataclasses.dataclass
 class _Run:
     """One opened training run (`_open_run`): `loop` runs the steps, `finish` closes it and writes the summary."""
@@ -415,18 +228,13 @@ class _Run:
     ckpt: Checkpointer
     mesh: object
     state: object
-    it: object  # the training batches (a grain iterator; its position is checkpointed)
-    train_data: _Split
-    val_data: _Split | None
-    log: _Log
-    meta: dict
-    n_train: int
-    bs: int
-    steps_per_epoch: int
-    total: int
-    start: int
+    meta: dict  # what a checkpoint carries besides the arrays (_new_meta)
+    log: RunLog
+    data: _Data
+    plan: _Plan
 
     def __post_init__(self):
+        self.bs, self.steps_per_epoch, self.total, self.start = dataclasses.astuple(self.plan)
         tc = self.cfg["train"]
         self.nonfinite = tc["nonfinite"]
         self.ckpt_every = max(int(tc["ckpt_every"]), 1)
@@ -443,7 +251,7 @@ class _Run:
         self.bar = _progress(progress, self.total, self.start, self.spec.name)
         try:
             for step in range(self.start, self.total):
-                self.state, m = train_step(self.state, shard_batch(next(self.it), self.mesh))
+                self.state, m = train_step(self.state, shard_batch(next(self.data.it), self.mesh))
                 done = step + 1
                 self.pending.append((done, m))
                 if self.bar is not None:
@@ -462,7 +270,7 @@ class _Run:
                     self.end_epoch(done)
                 if save:
                     self.meta["elapsed_s"] = self.elapsed0 + time.perf_counter() - self.t0
-                    self.ckpt.save_latest(done, self.state, self.it.get_state(), self.meta)
+                    self.ckpt.save_latest(done, self.state, self.data.it.get_state(), self.meta)
                 if max_steps is not None and done >= max_steps:
                     break
             self.flush()
@@ -495,8 +303,8 @@ class _Run:
                 row["skipped"] = True
             self.log.row(row)
             if not ok and self.nonfinite == "stop":
-                raise _nonfinite_error(row, step, self.ckpt, self.run_dir, self.n_train, int(self.cfg["seed"]),
-                                       self.bs)
+                raise nonfinite.error(row, step, self.ckpt, self.run_dir, len(self.data.train.source),
+                                       int(self.cfg["seed"]), self.bs)
             if not ok:  # "skip": the step dropped the update; keep the epoch means finite
                 self.meta["nonfinite_steps"].append(step)
                 continue
@@ -516,16 +324,16 @@ class _Run:
         if evaluate:
             jax.block_until_ready(self.state.params)  # queued train steps are not evaluation time
             t_eval = time.perf_counter()
-            self.state = refresh_feature_norm(self.state, self.train_data, self.bs, self.mesh)
+            self.state = validation.refresh_feature_norm(self.state, self.data.train, self.bs, self.mesh)
         row = self._epoch_row(done, epoch, self.elapsed0 + time.perf_counter() - self.t0)
         if not evaluate:  # not a validation epoch (train.val_every): the row has train columns only
             self.log.epoch(row)
             return
-        if self.val_data is not None:
-            val = _validate(self.state, self.val_data, self.bs, self.mesh)
+        if self.data.val is not None:
+            val = validation.run(self.state, self.data.val, self.bs, self.mesh)
             self.meta["last_val"] = {**val, "epoch": epoch, "step": done}
             self.log.row({"kind": "val", "step": done, "epoch": epoch, **val})
-            row.update(_val_columns(val, self.state.objective))
+            row.update(val_columns(val, self.state.objective))
             score = val["loss"]
         else:
             score = row["train_loss"]  # no validation split: keep the newest epoch as "best"
@@ -585,28 +393,6 @@ class _Run:
         atomic_write_text(self.run_dir / SUMMARY_NAME, json.dumps(summary, indent=2))
         summary["state"] = self.state
         return summary
-
-
-def _val_columns(val: dict, objective) -> dict:
-    """epochs.csv's validation columns from a `_validate` result."""
-    row = {"val_loss": val["loss"], **{f"val_{name}": val[name] for name in objective.names}, "val_nl1": val["nl1"]}
-    row.update({f"val_nl1_{a}": v for a, v in zip(("fx", "fy", "fz"), val["nl1_axes"])})
-    row.update({f"val_mae_{a}": v for a, v in zip(("fx", "fy", "fz"), val["mae_n"])})
-    return row
-
-
-def _nonfinite_error(row, step, ckpt, run_dir, n, seed, bs) -> NonFiniteLossError:
-    good = ckpt.latest_step()
-    what = "loss" if not math.isfinite(row["loss"]) else "gradient"
-    idx = batch_records(n, seed, bs, step)
-    return NonFiniteLossError(
-        f"non-finite training {what} (loss {row['loss']}, grad norm {row['grad_norm']}) at step {step} "
-        f"(epoch {row['epoch']}, batch {step - 1}: train records {idx}); stopped, the update was not applied. "
-        f"Last good checkpoint: step {good} in {run_dir / 'checkpoints'}"
-        + (" (none yet)" if good is None else "")
-        + ". Lower train.lr_* or set train.grad_clip, check those records, then resume or restart "
-        "(or set train.nonfinite=skip)."
-    )
 
 
 def _diff(a, b, prefix: str = "") -> list[str]:

@@ -21,6 +21,7 @@ from ffjax import store, train
 from ffjax.errors import WriteError
 from ffjax.store import checkpoints as ckpt_lib
 from ffjax.train import loop as loop_lib
+from ffjax.train import nonfinite
 
 METHOD = "dino_rd"  # the smoke model test_train / test_resume compile too
 ROOT = Path(__file__).resolve().parents[2]
@@ -241,7 +242,7 @@ def test_nonfinite_stops_naming_step_and_batch(data, tmp_path, monkeypatch):
     from ffjax import data as fdata
 
     src = fdata.open_split(data / "train")
-    idx = loop_lib.batch_records(len(src), 0, 8, 7)
+    idx = nonfinite.batch_records(len(src), 0, 8, 7)
     np.testing.assert_allclose(np.stack([src[i]["force"] for i in idx]), seen[0])
     v = store.load(tmp_path, which="latest").variables
     assert all(np.isfinite(x).all() for x in _leaves(v))
