@@ -97,7 +97,7 @@ SPEC = {
         "steps": Key(180, NN_INT, before=100),
         "batch_size": Key(32, POS_INT),
         "lr": Key(5e-4, POS),  # peak, after warmup_steps, cosine down to min_lr_ratio * lr
-        "corpus_size": Key(6000, NN_INT, before=1000),  # unlabeled images (ffjax.train.corpus)
+        "corpus_size": Key(6000, NN_INT, before=1000),  # unlabeled images (ffjax.train.pretrain.corpus)
         "out_dim": Key(1024, POS_INT),  # prototypes of the DINO head
         "warmup_steps": Key(20, NN_INT),
         "min_lr_ratio": Key(0.05, PROB),

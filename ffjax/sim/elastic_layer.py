@@ -2,7 +2,7 @@
 bonded to a rigid base, pressed by a rigid frictionless body, then sheared in stick.
 
 The simulator's normal solve (`ffjax.sim.mechanics.solve_normal` adds large-strain stiffening and the pad's
-grid) and, at a finer grid, the yardstick of experiments.layer_check. It solves the exact small-strain
+grid) and, at a finer grid, the yardstick of experiments.diagnostics.layer_check. It solves the exact small-strain
 problem on a grid, so it has what independent columns (the simulator's model before issue 13) lack:
 pressure concentrated at a flat punch's edges when the contact is small against t (half-space, p ~ 1/sqrt(a^2 - r^2)), a
 pressure dome and strong stiffening when it is large against t (the squeezed layer must flow out

@@ -170,5 +170,5 @@ def shear(ft, fz: float, contact: np.ndarray, mm_per_px: float, shear_mpa: float
 
 def shear_bulge(sh: Shear) -> np.ndarray:
     """The surface displacement (mm, + = into the gel) that a shear with a field adds: the gel rising ahead of
-    the motion and sinking behind it (a function, so experiments.shear_probe can render without it)."""
+    the motion and sinking behind it (a function, so experiments.diagnostics.shear_probe can render without it)."""
     return sh.bulge
