@@ -159,10 +159,13 @@ def probes(data_root: Path, runs: list[Path]) -> dict:
 
     if runs:  # the runs' own input statistics and size (the probes standardize anyway)
         stats = store.describe(runs[0]).stats
-    else:
-        cfg = common.read_json(data_root / "config.json") or {}
+    else:  # the input size of the preset the dataset was made with (its config.json holds only what sim reads)
+        made = common.read_json(data_root / "manifest.json") or {}
+        if "data_config" not in made:
+            raise FileNotFoundError(f"{data_root / 'manifest.json'}: no finished dataset there (python -m "
+                                    "ffjax.simulate)")
         stats = data.Stats(mean=(0.0,) * 3, std=(1.0,) * 3, depth_min=0.0, depth_max=1.0, force_min=(0.0,) * 3,
-                           force_max=(1.0,) * 3, input_size=int(cfg.get("data", {}).get("input_size", 64)))
+                           force_max=(1.0,) * 3, input_size=int(made["data_config"]["input_size"]))
     size = int(stats.input_size)
     tr = data.load_arrays(data.open_split(dataset.split_dir(data_root, "train")), stats, size)
     va = data.load_arrays(data.open_split(dataset.split_dir(data_root, "val")), stats, size)
