@@ -13,7 +13,7 @@ import sys
 
 import configs
 from ffjax import cli
-from ffjax.sim import dataset
+from ffjax.sim import batched, dataset
 
 
 def main(argv=None) -> int:
@@ -29,6 +29,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
     cfg = configs.from_cli(ap, args.preset, args.set)
+    batched.use_disk_cache()  # this process's compiled solves, for the next run
     m = dataset.generate(cfg, args.out, force=args.force, workers=args.workers, progress=not args.quiet)
     gen = m["generation"]
     print(f"{args.out}: {len(m['splits'])} splits, {gen['samples']} presses "

@@ -103,8 +103,12 @@ def test_csv_converter_round_trip(root, tmp_path):
 
 
 def test_refused_pose_is_pulled_inwards():
+    """Refused poses are pressed again, pulled towards the centre, in a batch per round; the others keep theirs."""
     sensor = sim.get_sensor("mini-1")
     x = 0.75 * sensor.fov_mm[1]  # off the pad: the simulator refuses it
-    s = dataset._press_safe(sim.get_shape("cone"), sensor, (0.1, 0.0, 5.0), x, 0.0, 0.0, (1.0, 0.0), 3,
-                            (24, 32))
-    assert s.meta["x_mm"] == pytest.approx(x / 2) and s.force[2] == pytest.approx(5.0)
+    q = {"force": np.array([[0.1, 0.0, 5.0], [0.0, 0.2, 3.0]]), "x_mm": np.array([x, 1.0]),
+         "y_mm": np.zeros(2), "yaw_deg": np.zeros(2), "tilt_deg": np.array([[1.0, 0.0], [0.0, 0.0]]),
+         "seed": np.array([3, 4])}
+    s = dataset._press_safe([sim.get_shape("cone")] * 2, sensor, q, (24, 32))
+    assert s[0].meta["x_mm"] == pytest.approx(x / 2) and s[0].force[2] == pytest.approx(5.0)
+    assert s[1].meta["x_mm"] == 1.0 and s[1].force[2] == pytest.approx(3.0)

@@ -45,6 +45,7 @@ from tqdm import tqdm
 from ffjax import sim
 from ffjax.data.images import write_rgb
 from ffjax.files import atomic_write, atomic_write_text, check_writable
+from ffjax.sim import batched
 from ffjax.sim.sensors import MINI_NAMES, SENSOR_NAMES, get_sensor
 
 VERSION = 1
@@ -170,52 +171,46 @@ def sample_presses(spec: SplitSpec, cfg: dict) -> dict:
     return p
 
 
-def _press_safe(shape, sensor, f, x, y, yaw, tilt, seed, size):
-    """One press; a pose the simulator refuses is pulled towards the centre (then untilted), so the
-    requested Fz is always honoured. Deterministic."""
-    for k in range(4):
-        scale = 0.5**k
-        t = tilt if k < 3 else (0.0, 0.0)
-        try:
-            return sim.press(shape, sensor, f, x * scale, y * scale, yaw, t, int(seed), size)
-        except ValueError:
-            if k == 3:
-                raise
-    raise AssertionError("unreachable")
+# A pose the simulator refuses (a deep press off the pad) is pulled towards the centre, halving its offset twice,
+# then untilted at an eighth: the requested Fz is always honoured. Deterministic.
+_PULLS = ((1.0, True), (0.5, True), (0.25, True), (0.125, False))
+
+
+def _press_safe(shapes, sensor, q: dict, size) -> list:
+    """Samples of the presses `q` (sampled arrays), their layer solves batched; refused poses are pressed again,
+    pulled inwards (_PULLS), in one batch per round."""
+    n = len(shapes)
+    out: list = [None] * n
+    todo = list(range(n))
+    for scale, tilted in _PULLS:
+        tilt = [tuple(q["tilt_deg"][i]) if tilted else (0.0, 0.0) for i in todo]
+        got = sim.press_many([shapes[i] for i in todo], sensor, q["force"][todo], q["x_mm"][todo] * scale,
+                             q["y_mm"][todo] * scale, q["yaw_deg"][todo], tilt, [int(v) for v in q["seed"][todo]],
+                             size)
+        for i, s in zip(todo, got):
+            out[i] = s
+        todo = [i for i in todo if isinstance(out[i], ValueError)]
+        if not todo:
+            return out
+    raise out[todo[0]]
 
 
 def render_shard(spec: SplitSpec, p: dict, lo: int, hi: int, size) -> dict:
     """Render presses [lo, hi) of a split (already sampled): the shard's arrays."""
     sensor = get_sensor(spec.sensor)
     size = render_size(sensor, size)
-    n = hi - lo
-    H, W = size
-    out = {"image": np.empty((n, H, W, 3), np.uint8), "depth": np.empty((n, H, W), np.float32),
-           "force": np.empty((n, 3), np.float32)}
-    meta = {k: np.empty(n) for k in ("x_mm", "y_mm", "yaw_deg", "penetration_mm", "contact_area_mm2")}
-    meta |= {"tilt_deg": np.empty((n, 2)), "requested_force": np.empty((n, 3)),
-             "shear_disp_mm": np.empty((n, 2)), "slip": np.empty(n, bool)}
     sl = slice(lo, hi)
-    idx_all = p["shape_index"][sl]
-    for si in np.unique(idx_all):
-        rows = np.nonzero(idx_all == si)[0]
-        q = {k: v[sl][rows] for k, v in p.items()}
-        shape = spec.shapes[si]
-        try:
-            b = sim.press_batch(shape, sensor, q["force"], q["x_mm"], q["y_mm"], q["yaw_deg"], q["tilt_deg"],
-                                q["seed"], size)
-        except ValueError:  # some pose was refused: press one by one, pulling refused poses inwards
-            smp = [_press_safe(shape, sensor, q["force"][j], q["x_mm"][j], q["y_mm"][j], q["yaw_deg"][j],
-                               tuple(q["tilt_deg"][j]), q["seed"][j], size) for j in range(len(rows))]
-            b = {"image": np.stack([s.image for s in smp]), "depth": np.stack([s.depth for s in smp]),
-                 "force": np.stack([s.force for s in smp]), "meta": [s.meta for s in smp]}
-        out["image"][rows], out["depth"][rows], out["force"][rows] = b["image"], b["depth"], b["force"]
-        for j, m in zip(rows, b["meta"]):
-            for k in meta:
-                meta[k][j] = m[k]
-    out |= {k: v.astype(np.float32) if v.dtype == np.float64 else v for k, v in meta.items()}
+    q = {k: v[sl] for k, v in p.items()}
+    idx_all = q["shape_index"]
+    smp = _press_safe([sim.get_shape(spec.shapes[i]) for i in idx_all], sensor, q, size)
+    out = {"image": np.stack([s.image for s in smp]), "depth": np.stack([s.depth for s in smp]),
+           "force": np.stack([s.force for s in smp])}
+    for k in ("x_mm", "y_mm", "yaw_deg", "penetration_mm", "contact_area_mm2", "tilt_deg", "requested_force",
+              "shear_disp_mm", "slip"):
+        v = np.array([s.meta[k] for s in smp])
+        out[k] = v.astype(np.float32) if v.dtype == np.float64 else v
     out["shape"] = np.array([spec.shapes[i] for i in idx_all])
-    out["seed"] = p["seed"][sl].astype(np.int64)
+    out["seed"] = q["seed"].astype(np.int64)
     return out
 
 
@@ -255,6 +250,7 @@ def _shard_ok(path: Path) -> bool:
 def _shard_task(args) -> int:
     spec, p, lo, hi, size, path = args
     cv2.setNumThreads(1)  # one process per core already
+    batched.use_disk_cache()  # a worker process: the solves' programs from disk after the first run
     save_npz(path, render_shard(spec, p, lo, hi, size))
     return hi - lo
 

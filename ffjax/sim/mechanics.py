@@ -25,7 +25,7 @@ import functools
 import cv2
 import numpy as np
 
-from ffjax.sim import elastic_layer
+from ffjax.sim import batched, elastic_layer
 
 MAX_STRAIN = 0.9  # presses needing a deeper compression than this x thickness are refused (gel bottoms out)
 SOLVE_MARGIN_T = 2.0  # layer beyond the pad in the solve, x thickness: its response decays over ~t
@@ -85,18 +85,61 @@ class Normal:
     pressure: np.ndarray  # (H, W) MPa
 
 
-
-def solve_normal(h: np.ndarray, mm_per_px: float, shear_mpa: float, thickness: float, fz: float) -> Normal:
+def solve_normal(h: np.ndarray, mm_per_px: float, shear_mpa: float, thickness: float, fz: float,
+                 reference: bool = False) -> Normal:
     """The layer's response to a rigid frictionless body of heights h (mm over the pad grid; >= FAR/2 = no
-    body) pressed until it carries Fz (N). ValueError if the gel would be compressed past MAX_STRAIN."""
-    H, W = h.shape
-    body_pad = h < elastic_layer.FAR / 2
-    if fz <= FZ_NONE or not body_pad.any():
-        zero = np.zeros((H, W))
-        return Normal(0.0, zero, zero.astype(bool), zero)
+    body) pressed until it carries Fz (N). ValueError if the gel would be compressed past MAX_STRAIN.
+    The batch of one of `solve_normal_batch`."""
+    out = solve_normal_batch(np.asarray(h)[None], mm_per_px, shear_mpa, thickness, [fz], reference)[0]
+    if isinstance(out, ValueError):
+        raise out
+    return out
+
+
+def solve_normal_batch(hs, mm_per_px: float, shear_mpa: float, thickness: float, fzs,
+                       reference: bool = False) -> list:
+    """solve_normal for B presses on one pad grid (hs (B, H, W), fzs (B,)): a Normal per press, or the
+    ValueError it raises. The layer solves run batched on the device (`ffjax.sim.batched`); reference=True runs
+    the numpy reference (`elastic_layer.solve_contact`, one press at a time), which they agree with."""
+    hs = np.asarray(hs, np.float64)
+    B, H, W = hs.shape
+    out: list = [None] * B
     m, layer = _padded_layer((H, W), mm_per_px, thickness, shear_mpa)
-    hb = np.full(layer.shape, elastic_layer.FAR)
-    hb[m:m + H, m:m + W] = np.where(body_pad, h - float(h[body_pad].min()), elastic_layer.FAR)
+    todo, hbs = [], []
+    for i, (h, fz) in enumerate(zip(hs, fzs)):
+        body_pad = h < elastic_layer.FAR / 2
+        if fz <= FZ_NONE or not body_pad.any():
+            zero = np.zeros((H, W))
+            out[i] = Normal(0.0, zero, zero.astype(bool), zero)
+            continue
+        hb = np.full(layer.shape, elastic_layer.FAR)
+        hb[m:m + H, m:m + W] = np.where(body_pad, h - float(h[body_pad].min()), elastic_layer.FAR)
+        todo.append(i)
+        hbs.append(hb)
+    if not todo:
+        return out
+    fz = np.asarray([fzs[i] for i in todo], np.float64)
+    if reference:
+        solved = [_reference_normal(hb, f, layer, thickness) for hb, f in zip(hbs, fz)]
+        delta, u, p = (np.stack([r[k] for r in solved]) for k in range(3))
+    else:
+        r = batched.normal(np.stack(hbs), fz, layer, thickness, _EPS, _PSI, MAX_STRAIN * thickness)
+        delta, u, p = r["delta"].astype(np.float64), r["u"], r["p"]
+    inner = (slice(None), slice(m, m + H), slice(m, m + W))
+    hb = np.stack(hbs)
+    surface = np.maximum(soften(u, thickness), delta[:, None, None] - hb)[inner]  # never inside the body
+    for j, i in enumerate(todo):
+        if delta[j] > MAX_STRAIN * thickness:
+            out[i] = ValueError(
+                f"Fz={fzs[i]:.3g} N is beyond what this gel takes for this body and pose: it would compress the "
+                f"{thickness} mm gel past {MAX_STRAIN:.0%} of its thickness")
+        else:
+            out[i] = Normal(float(delta[j]), surface[j], (p[j] > 0)[m:m + H, m:m + W], p[j][m:m + H, m:m + W])
+    return out
+
+
+def _reference_normal(hb: np.ndarray, fz: float, layer, thickness: float):
+    """(delta, u, p) of the fixed point on the approach with the numpy reference contact solve."""
     body = hb < elastic_layer.FAR / 2
     target, delta, p = hb, None, None
     for _ in range(30):  # fixed point on the approach: the stiffened target depends on it
@@ -110,13 +153,7 @@ def solve_normal(h: np.ndarray, mm_per_px: float, shear_mpa: float, thickness: f
             break
         target = np.where(body, -stiffen(np.minimum(delta, _EPS[-1] * thickness) - hb, thickness),
                           elastic_layer.FAR)
-    if delta > MAX_STRAIN * thickness:
-        raise ValueError(
-            f"Fz={fz:.3g} N is beyond what this gel takes for this body and pose: it would compress the "
-            f"{thickness} mm gel past {MAX_STRAIN:.0%} of its thickness")
-    inner = (slice(m, m + H), slice(m, m + W))
-    surface = np.maximum(soften(r["u"], thickness), delta - hb)[inner]  # never inside the body
-    return Normal(delta, surface, r["contact"][inner], r["p"][inner])
+    return delta, r["u"], r["p"]
 
 
 def smooth(x: np.ndarray, sigma_px: float) -> np.ndarray:
@@ -146,26 +183,58 @@ class Shear:
 
 
 def shear(ft, fz: float, contact: np.ndarray, mm_per_px: float, shear_mpa: float, thickness: float,
-          friction: float) -> Shear:
+          friction: float, reference: bool = False) -> Shear:
     """Tangential response to the requested shear ft = (Fx, Fy) with the Coulomb cap mu * Fz, for a body in
-    stick over `contact` (bool, the pad grid of spacing mm_per_px: the normal solve's)."""
-    ft = np.asarray(ft, dtype=np.float64)
-    cap = friction * fz
-    mag = float(np.hypot(*ft))
-    slip = mag > cap + 1e-9
-    applied = ft * (cap / mag) if slip else ft
-    if not np.any(applied) or not contact.any():
-        return Shear(applied, np.zeros(2), slip, 0.0, None, None)
-    H, W = contact.shape
+    stick over `contact` (bool, the pad grid of spacing mm_per_px: the normal solve's). The batch of one of
+    `shear_batch`."""
+    return shear_batch([ft], [fz], np.asarray(contact)[None], mm_per_px, shear_mpa, thickness, friction,
+                       reference)[0]
+
+
+_NO_SHEAR = 1e-9  # N
+
+
+def shear_batch(fts, fzs, contacts, mm_per_px: float, shear_mpa: float, thickness: float, friction: float,
+                reference: bool = False) -> list[Shear]:
+    """`shear` for B presses on one pad grid (contacts (B, H, W)): the stick solves of those with a shear and a
+    contact run batched on the device (`ffjax.sim.batched.stick`); reference=True runs the numpy reference
+    (`elastic_layer.solve_stick`: unit displacements along x and y, combined), which they agree with."""
+    contacts = np.asarray(contacts, bool)
+    B, H, W = contacts.shape
+    out: list = [None] * B
+    todo = []
+    for i, (ft, fz) in enumerate(zip(fts, fzs)):
+        ft = np.asarray(ft, dtype=np.float64)
+        cap = friction * fz
+        mag = float(np.hypot(*ft))
+        slip = mag > cap + 1e-9
+        applied = ft * (cap / mag) if slip else ft
+        if mag < _NO_SHEAR or not contacts[i].any():  # below a nN nothing moves a pixel (and float32 is 0)
+            out[i] = Shear(applied, np.zeros(2), slip, 0.0, None, None)
+        else:
+            todo.append((i, applied, slip))
+    if not todo:
+        return out
     m, layer = _padded_layer((H, W), mm_per_px, thickness, shear_mpa)
-    held = np.zeros(layer.shape, bool)
-    held[m:m + H, m:m + W] = contact
-    r = elastic_layer.solve_stick(held, layer)
-    s = np.linalg.solve(r["K"], applied)
-    ux, uy, dz = s[0] * r["fields"][0] + s[1] * r["fields"][1]
+    held = np.zeros((len(todo),) + layer.shape, bool)
+    held[:, m:m + H, m:m + W] = contacts[[i for i, _, _ in todo]]
+    force = np.stack([a for _, a, _ in todo])
+    if reference:
+        fields, s = [], []
+        for h, f in zip(held, force):
+            r = elastic_layer.solve_stick(h, layer)
+            s.append(np.linalg.solve(r["K"], f))
+            fields.append(s[-1][0] * r["fields"][0] + s[-1][1] * r["fields"][1])
+        fields, s = np.stack(fields), np.stack(s)
+    else:
+        r = batched.stick(held, force, layer)
+        fields, s = r["fields"], r["s"].astype(np.float64)
     inner = (slice(m, m + H), slice(m, m + W))
-    field = np.stack([ux[inner], uy[inner]], -1).astype(np.float32)
-    return Shear(applied, s, slip, float(np.hypot(*applied) / np.hypot(*s)), field, dz[inner].astype(np.float32))
+    for j, (i, applied, slip) in enumerate(todo):
+        ux, uy, dz = (f[inner] for f in fields[j])
+        out[i] = Shear(applied, s[j], slip, float(np.hypot(*applied) / np.hypot(*s[j])),
+                       np.stack([ux, uy], -1).astype(np.float32), dz.astype(np.float32))
+    return out
 
 
 def shear_bulge(sh: Shear) -> np.ndarray:

@@ -96,61 +96,118 @@ def press(shape: Shape | str, sensor: Sensor | str, force=(0.0, 0.0, 1.0), x_mm:
     The penetration is solved so that the gel carries Fz; shear beyond mu * Fz slips and is capped
     (meta["slip"]). Camera noise comes from `seed` (independent of the background frame's fixed noise);
     noise=False renders a noiseless frame (then zero force gives exactly sensor.background(size, False)).
+    The batch of one of `press_batch`.
     """
     shape = get_shape(shape) if isinstance(shape, str) else shape
     sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
     size = render_size_of(sensor, size)
-    s = _press(shape, sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed, size, noise)
+    s = press_many([shape], sensor, [force], [x_mm], [y_mm], [yaw_deg], [tilt_deg], [seed], size, noise)[0]
+    if isinstance(s, ValueError):
+        raise s
     s.background = optics.background(sensor, size, noise)
     return s
 
 
-def _press(shape: Shape, sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed, size, noise) -> Sample:
+@dataclasses.dataclass
+class _Request:
+    """One press, checked, with its body's heights on the force solve's grid."""
+
+    shape: Shape
+    force: np.ndarray  # (3,) requested, N
+    pose: tuple  # (x_mm, y_mm, yaw_deg, (tilt_x, tilt_y))
+    seed: int
+    h_s: np.ndarray  # heights above the gel on the solve grid, mm
+
+
+def _request(shape: Shape, sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed) -> _Request:
     tilt = np.asarray(tilt_deg, dtype=np.float64).reshape(-1)
     if tilt.shape != (2,):
         raise ValueError(f"tilt_deg must be (tilt_x, tilt_y) in degrees, got {tilt_deg!r}")
     tilt_deg = tuple(float(t) for t in tilt)
     f = _check(sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed)
-    gel = sensor.gel
     pose = (float(x_mm), float(y_mm), float(yaw_deg), tilt_deg)
-
-    # force balance on the fixed solve grid
-    ssize = _solve_size(sensor)
-    sdy, sdx = sensor.mm_per_px(ssize)
-    h_s = body_heights(shape, sensor, ssize, *pose)
+    h_s = body_heights(shape, sensor, _solve_size(sensor), *pose)
     if not (h_s < 0.5 * FAR).any():
         raise ValueError(f"{shape.name} at pose {pose} does not reach the pad")
-    normal = mechanics.solve_normal(h_s, (sdx + sdy) / 2, gel.shear_mpa, gel.thickness_mm, float(f[2]))
-    cell_s = sdx * sdy
-    hmin = float(h_s.min())
+    return _Request(shape, f, pose, int(seed), h_s)
 
-    # the same press on the render grid: the solved surface, with the body's own detail where it touches
+
+def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds, size: tuple[int, int] | None = None,
+               noise: bool = True, reference: bool = False) -> list:
+    """One Sample per press (shapes, by name or Shape, and poses may all differ; one sensor and render size), or
+    the ValueError that press refused: the layer solves of all of them run as one batch
+    (`mechanics.solve_normal_batch`, `shear_batch`); reference=True runs the numpy reference solves instead (the
+    benchmark's old path)."""
+    sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
+    size = render_size_of(sensor, size)
+    shapes = [get_shape(s) if isinstance(s, str) else s for s in shapes]
+    if len({len(shapes), len(forces), len(xs), len(ys), len(yaws), len(tilts), len(seeds)}) != 1:
+        raise ValueError("press_many needs one shape, force, x, y, yaw, tilt and seed per press, got "
+                         f"{[len(v) for v in (shapes, forces, xs, ys, yaws, tilts, seeds)]}")
+    gel = sensor.gel
+    ssize = _solve_size(sensor)
+    sdy, sdx = sensor.mm_per_px(ssize)
+    out: list = [None] * len(shapes)
+    reqs = {}
+    for i, args in enumerate(zip(shapes, forces, xs, ys, yaws, tilts, seeds)):
+        try:
+            reqs[i] = _request(args[0], sensor, *args[1:])
+        except ValueError as e:
+            out[i] = e
+    if not reqs:
+        return out
+    # similar presses side by side: a batch runs until its slowest press converges, and the same body at a
+    # similar force takes a similar number of iterations (results do not depend on the order)
+    reqs = dict(sorted(reqs.items(), key=lambda kv: (kv[1].shape.name, float(kv[1].force[2]))))
+    mpp_s = (sdx + sdy) / 2
+    normals = mechanics.solve_normal_batch([r.h_s for r in reqs.values()], mpp_s, gel.shear_mpa, gel.thickness_mm,
+                                           [float(r.force[2]) for r in reqs.values()], reference)
+    ok = []
+    for i, nrm in zip(reqs, normals):
+        if isinstance(nrm, ValueError):
+            out[i] = nrm
+        else:
+            ok.append((reqs[i], nrm, i))
+    if not ok:
+        return out
+    shears = mechanics.shear_batch([r.force[:2] for r, _, _ in ok], [float(r.force[2]) for r, _, _ in ok],
+                                   np.stack([n.contact for _, n, _ in ok]), mpp_s, gel.shear_mpa, gel.thickness_mm,
+                                   gel.friction, reference)
+    for (req, nrm, i), sh in zip(ok, shears):
+        out[i] = _sample(req, sensor, size, nrm, sh, noise)
+    return out
+
+
+def _sample(req: _Request, sensor: Sensor, size: tuple[int, int], normal, sh, noise: bool) -> Sample:
+    """The frame and labels of one solved press: the solved surface on the render grid, with the body's own
+    detail where it touches, carried by the shear, rendered."""
+    ssize = _solve_size(sensor)
+    sdy, sdx = sensor.mm_per_px(ssize)
     dy, dx = sensor.mm_per_px(size)
     mpp = (dx + dy) / 2
-    h = body_heights(shape, sensor, size, *pose)
-    d = np.float32(hmin + normal.delta) - h  # > 0 where the body is below the undeformed surface
+    h = body_heights(req.shape, sensor, size, *req.pose)
+    d = np.float32(float(req.h_s.min()) + normal.delta) - h  # > 0 where the body is below the undeformed surface
     # bilinear both ways: mirror-symmetric at any ratio (area averaging is not at 60 -> 48), and the
     # solved surface is smooth on the solve grid's scale
     to_render = lambda a: cv2.resize(a, (size[1], size[0]), interpolation=cv2.INTER_LINEAR)  # noqa: E731
     surface = to_render(normal.surface.astype(np.float32))
     depth = np.maximum(surface, d) if normal.delta > 0 else surface
-    sh = mechanics.shear(f[:2], float(f[2]), normal.contact, (sdx + sdy) / 2, gel.shear_mpa, gel.thickness_mm,
-                         gel.friction)
     disp_px = None
     if sh.field is not None:
         disp_px = to_render(sh.field) / np.float32(mpp)
         depth = _carried(depth, disp_px, (sh.disp_mm / mpp).astype(np.float32)) + to_render(mechanics.shear_bulge(sh))
     # the pigment skin cannot bend sharply: soften kinks at the contact edge (~0.1 mm)
     depth = mechanics.smooth(depth.astype(np.float32), SKIN_MM / mpp)
-    image = optics.render(sensor, size, depth, disp_px, seed if noise else None)
+    image = optics.render(sensor, size, depth, disp_px, req.seed if noise else None)
+    f, pose = req.force, req.pose
     applied = np.array([sh.force[0], sh.force[1], f[2]], dtype=np.float32)
     meta = {
-        "shape": shape.name, "sensor": sensor.name, "gel": sensor.gel_id, "sensor_key": sensor.key,
-        "x_mm": pose[0], "y_mm": pose[1], "yaw_deg": pose[2], "tilt_deg": tilt_deg,
-        "penetration_mm": normal.delta, "contact_area_mm2": float(normal.contact.sum() * cell_s),
+        "shape": req.shape.name, "sensor": sensor.name, "gel": sensor.gel_id, "sensor_key": sensor.key,
+        "x_mm": pose[0], "y_mm": pose[1], "yaw_deg": pose[2], "tilt_deg": pose[3],
+        "penetration_mm": normal.delta, "contact_area_mm2": float(normal.contact.sum() * sdx * sdy),
         "slip": bool(sh.slip), "shear_disp_mm": tuple(float(v) for v in sh.disp_mm),
         "shear_stiffness_n_per_mm": float(sh.stiffness), "requested_force": tuple(float(v) for v in f),
-        "mm_per_px": float(mpp), "seed": int(seed), "size": size,
+        "mm_per_px": float(mpp), "seed": int(req.seed), "size": size,
     }
     return Sample(image, None, depth, applied, meta)
 
@@ -167,15 +224,20 @@ def _carried(depth: np.ndarray, disp_px: np.ndarray, body_px: np.ndarray) -> np.
                      borderMode=cv2.BORDER_REPLICATE)
 
 
-def press_batch(shape: Shape | str, sensor: Sensor | str, forces, x_mm=None, y_mm=None, yaw_deg=None,
-                tilt_deg=None, seeds=None, size=None, noise: bool = True) -> dict:
-    """N presses of one shape on one sensor (the dataset path; shares every cached table).
+def press_batch(shape, sensor: Sensor | str, forces, x_mm=None, y_mm=None, yaw_deg=None,
+                tilt_deg=None, seeds=None, size=None, noise: bool = True, reference: bool = False) -> dict:
+    """N presses on one sensor, their layer solves batched (the dataset path; shares every cached table).
 
-    forces (N, 3); poses are (N,) arrays (tilt (N, 2)) or None for centred/untilted; seeds (N,) or None
-    (= 0..N-1). Returns {"image" (N,H,W,3) uint8, "depth" (N,H,W) float32, "force" (N,3) float32,
-    "background" (H,W,3) uint8, "meta": list of dicts}.
+    shape: one shape (name or Shape) for all, or a sequence of N. forces (N, 3); poses are (N,) arrays (tilt
+    (N, 2)) or None for centred/untilted; seeds (N,) or None (= 0..N-1). Returns {"image" (N,H,W,3) uint8,
+    "depth" (N,H,W) float32, "force" (N,3) float32, "background" (H,W,3) uint8, "meta": list of dicts}; the first
+    press the simulator refuses raises its ValueError. reference=True: the numpy reference solves.
     """
     shape = get_shape(shape) if isinstance(shape, str) else shape
+    if not isinstance(shape, Shape):
+        shape = [get_shape(s) if isinstance(s, str) else s for s in shape]
+        if len(shape) != len(forces):
+            raise ValueError(f"shape must be one shape or one per force ({len(forces)}), got {len(shape)}")
     sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
     size = render_size_of(sensor, size)
     forces = np.asarray(forces, dtype=np.float64)
@@ -190,8 +252,11 @@ def press_batch(shape: Shape | str, sensor: Sensor | str, forces, x_mm=None, y_m
     H, W = size
     out = {"image": np.empty((n, H, W, 3), np.uint8), "depth": np.empty((n, H, W), np.float32),
            "force": np.empty((n, 3), np.float32), "background": optics.background(sensor, size, noise), "meta": []}
-    for i in range(n):
-        s = _press(shape, sensor, forces[i], xs[i], ys[i], yaws[i], tilts[i], int(seeds[i]), size, noise)
+    shapes = [shape] * n if isinstance(shape, Shape) else shape
+    samples = press_many(shapes, sensor, forces, xs, ys, yaws, tilts, [int(v) for v in seeds], size, noise, reference)
+    for i, s in enumerate(samples):
+        if isinstance(s, ValueError):
+            raise s
         out["image"][i], out["depth"][i], out["force"][i] = s.image, s.depth, s.force
         out["meta"].append(s.meta)
     return out

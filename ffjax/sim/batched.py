@@ -1,0 +1,263 @@
+"""The gel's two layer solves for a batch of presses at once, as jitted JAX programs on whatever device jax sees.
+
+The same problems as the numpy reference in `ffjax.sim.elastic_layer` (its docstring has the physics), solved
+for B presses of one sensor in lock step: `jax.vmap` of fixed-shape `lax.while_loop`s, each press frozen once
+it has converged (a convergence mask), its FFTs batched with the others'. float32 throughout.
+
+- `normal(hb, fz, layer, thickness)`: the frictionless normal contact with the layer's large-strain stiffening:
+  Polonsky-Keer conjugate gradients whose target follows the approach (the reference runs the fixed point on the
+  approach as an outer loop of whole solves, ~3 of them; here it converges inside one, in about half the
+  iterations), stopping where the reference's loops both stop.
+- `stick(held, force, layer)`: the body stuck to the gel over its contact, loaded by the tangential force
+  itself (the reference solves for unit displacements along x and y and combines them): the traction on the
+  contact with the force's sum and the pressure change with zero sum, the surface displaced uniformly there.
+  One right-hand side instead of two, the same solution (linear in the force).
+
+Batches are padded to one of BATCHES (copies of the first press, dropped after), so a sensor and grid compile
+at most len(BATCHES) programs per solve; larger batches are cut into pieces of the largest size.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from ffjax.sim.elastic_layer import FAR, Layer
+
+BATCHES = (1, 8, 32)
+RESTART = 1e-3  # x thickness: an approach that moves more than this in one iteration restarts the CG directions
+RUNAWAY = 200  # iterations after which a press beyond the refused approach stops
+_TINY = 1e-30  # guards divisions that are 0 / 0 only for a press already frozen
+
+
+def use_disk_cache() -> Path | None:
+    """Keep compiled programs on disk (JAX's persistent compilation cache), so a new process (a dataset worker,
+    the next command) loads the solves' programs instead of compiling them again (~2 s per grid and batch size):
+    in $FFJAX_CACHE/xla, else ~/.cache/ffjax/xla. Left alone when the user has set a cache directory already, or
+    FFJAX_CACHE is "off"; returns the directory in use."""
+    if jax.config.jax_compilation_cache_dir:
+        return Path(jax.config.jax_compilation_cache_dir)
+    root = os.environ.get("FFJAX_CACHE", str(Path.home() / ".cache" / "ffjax"))
+    if root == "off":
+        return None
+    folder = Path(root) / "xla"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:  # a read-only home: compile in every process, as without the cache
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    return folder
+
+
+def _stiffen(u, t, eps, psi):
+    """mechanics.stiffen for compressions up to the table's end (the solve clips the approach there): the table
+    interpolated directly (its strains are evenly spaced), no search."""
+    x = u / t
+    pos = jnp.clip(x / (eps[1] - eps[0]), 0.0, len(eps) - 1.0)
+    i = jnp.minimum(pos.astype(jnp.int32), len(eps) - 2)
+    return jnp.where(x <= 0, u, t * (psi[i] + (pos - i) * (psi[i + 1] - psi[i])))
+
+
+def _soften(v, t, eps, psi):
+    """mechanics.soften, the inverse of psi(e) = ((1 - e)^-2 - (1 - e)) / 3 by Newton's method on y = 1 - e
+    (y^3 + 3 x y^2 - 1 = 0), where the reference interpolates the table: the two differ by the table's
+    interpolation error (~1e-8 of the thickness)."""
+    x = jnp.maximum(v / t, 0.0)
+    y = jnp.clip(1.0 - x / (1.0 + x), 0.02, 1.0)  # within a few percent of the root for every x
+    for _ in range(4):
+        f = y * y * (y + 3 * x) - 1.0
+        y = y - f / (y * (3 * y + 6 * x))
+    return jnp.where(v <= 0, v, t * jnp.minimum(1.0 - y, eps[-1]))
+
+
+def _masked_mean(x, on, n_on):
+    return jnp.sum(jnp.where(on, x, 0.0)) / n_on
+
+
+def _normal_one(hb, fz, kernel, eps, psi, cell, thickness, tol, outer_tol, max_iter, refuse_above, stiffening):
+    """mechanics' normal solve of one press on the padded grid: (delta, u, p, iterations); u is the linear
+    layer's displacement at the solution.
+
+    Polonsky-Keer conjugate gradients (elastic_layer.solve_contact) on a target that follows the approach: each
+    iteration restiffens the body's heights at the approach the current pressure gives (the first uses them
+    as they are), so the fixed point on the approach converges inside one CG instead of over three solves.
+    It stops where both the reference's loops stop: the pressure changes by less than `tol` (relative) and
+    the approach by less than `outer_tol` x thickness; and, past RUNAWAY iterations (a converging press needs
+    fewer than half of them), a press whose approach is beyond `refuse_above` (mm), which the caller refuses:
+    the gel cannot carry that force, and its stiffening would keep the whole batch iterating."""
+    shape = hb.shape
+    apply = lambda x: jnp.fft.irfft2(kernel * jnp.fft.rfft2(x), s=shape)  # noqa: E731
+    body = hb < FAR / 2
+    p = jnp.where(body, fz / (jnp.sum(body) * cell), 0.0)
+
+    def cond(c):
+        it, p, t, g_old, conj, change, delta, moved = c
+        runaway = (it > RUNAWAY) & (delta > refuse_above)
+        return (it < max_iter) & ((change >= tol) | (moved >= outer_tol * thickness)) & ~runaway
+
+    def step(c):
+        it, p, t, g_old, conj, change, delta_before, _ = c
+        u = apply(p)
+        on = p > 0
+        n_on = jnp.sum(on)
+        first = it == 0
+        if stiffening:
+            delta = jnp.where(first, 0.0, _masked_mean(hb + _soften(u, thickness, eps, psi), on, n_on))
+            target = -_stiffen(jnp.minimum(delta, eps[-1] * thickness) - hb, thickness, eps, psi)
+        else:  # the linear layer (elastic_layer.solve_contact): its closed-form checks
+            delta, target = _masked_mean(hb + u, on, n_on), hb
+        h = jnp.where(body, jnp.where(first, hb, target), FAR)
+        h = h - jnp.min(h)
+        inside = h < FAR / 2  # where the stiffened target rises past FAR / 2 the body no longer reaches (as the
+        p = jnp.where(inside, p, 0.0)  # reference, which re-reads its body from each pass's target)
+        on = p > 0
+        n_on = jnp.sum(on)
+        moved = jnp.where(first, jnp.inf, jnp.abs(delta - delta_before))
+        conj = conj & (moved < RESTART * thickness)  # a target that moved a lot starts the directions afresh
+        g = h + u
+        g = g - _masked_mean(g, on, n_on)
+        gg = jnp.sum(jnp.where(on, g * g, 0.0))
+        t = jnp.where(on, g + jnp.where(conj, gg / g_old, 0.0) * t, 0.0)
+        r = apply(t)
+        r = r - _masked_mean(r, on, n_on)
+        denom = jnp.sum(jnp.where(on, r * t, 0.0))
+        tau = jnp.where(denom > 0, jnp.sum(jnp.where(on, g * t, 0.0)) / jnp.where(denom > 0, denom, 1.0), 0.0)
+        p_new = jnp.maximum(jnp.where(on, p - tau * t, 0.0), 0.0)
+        overlap = (p_new == 0) & (g < 0) & inside  # the body would pass through the surface here: load it
+        p_new = jnp.where(overlap, p_new - tau * g, p_new)
+        p_new = p_new * (fz / (jnp.sum(p_new) * cell))
+        change = jnp.sum(jnp.abs(p_new - p)) / jnp.sum(p_new)
+        return it + 1, p_new, t, jnp.maximum(gg, _TINY), ~jnp.any(overlap), change, delta, moved
+
+    zero = jnp.zeros((), hb.dtype)
+    state = (0, p, jnp.zeros_like(p), zero + 1, jnp.asarray(False), zero + jnp.inf, zero, zero + jnp.inf)
+    it, p, *_ = lax.while_loop(cond, step, state)
+    u = apply(p)
+    on = p > 0
+    soft = _soften(u, thickness, eps, psi) if stiffening else u
+    return _masked_mean(hb + soft, on, jnp.sum(on)), u, p, it
+
+
+@functools.lru_cache(maxsize=32)
+def _normal_program(cell: float, thickness: float, tol: float, outer_tol: float, max_iter: int, refuse: float,
+                    stiffening: bool):
+    def run(hb, fz, kernel, eps, psi):
+        one = lambda h, f: _normal_one(h, f, kernel, eps, psi, cell, thickness, tol, outer_tol,  # noqa: E731
+                                       max_iter, refuse, stiffening)
+        return jax.vmap(one)(hb, fz)
+
+    return jax.jit(run)
+
+
+@functools.lru_cache(maxsize=32)
+def _kernels(layer: Layer):
+    """The layer's Fourier kernels on the device: the normal compliance and the six coupled ones (the two
+    imaginary coupling kernels as their imaginary parts)."""
+    cxx, cxy, cyy, zx, zy, cnn = layer._coupled_kernels()
+    coupled = tuple(jnp.asarray(k, jnp.float32) for k in (cxx, cxy, cyy, np.imag(zx), np.imag(zy), cnn))
+    return jnp.asarray(layer.kernel, jnp.float32), coupled
+
+
+def _pieces(n: int):
+    """(start, stop, padded size) of the calls a batch of n presses takes."""
+    top = BATCHES[-1]
+    for a in range(0, n, top):
+        m = min(top, n - a)
+        yield a, a + m, next(b for b in BATCHES if b >= m)
+
+
+def _padded(x: np.ndarray, size: int) -> np.ndarray:
+    return x if len(x) == size else np.concatenate([x, np.repeat(x[:1], size - len(x), 0)])
+
+
+def normal(hb: np.ndarray, fz: np.ndarray, layer: Layer, thickness: float, eps: np.ndarray | None,
+           psi: np.ndarray | None, refuse_above: float = np.inf, tol: float = 1e-6, outer_tol: float = 1e-4,
+           max_iter: int = 2000) -> dict:
+    """The normal solve of B presses: hb (B, *layer.shape) heights above each body's lowest point (FAR where
+    there is no body), fz (B,) N > 0; eps/psi the stiffening table (None: the linear layer); refuse_above (mm)
+    the approach the caller refuses (a press past it stops early). Returns numpy arrays: delta (B,) mm,
+    u (B, H, W) the linear layer's displacement, p (B, H, W) MPa, iterations (B,)."""
+    hb, fz = np.asarray(hb, np.float32), np.asarray(fz, np.float32)
+    kernel, _ = _kernels(layer)
+    run = _normal_program(float(layer.dx) ** 2, float(thickness), float(tol), float(outer_tol), int(max_iter),
+                          float(refuse_above), eps is not None)
+    table = tuple(jnp.asarray(np.zeros(2) if t is None else t, jnp.float32) for t in (eps, psi))
+    parts = [jax.device_get(run(_padded(hb[a:b], m), _padded(fz[a:b], m), kernel, *table))
+             for a, b, m in _pieces(len(hb))]
+    names = ("delta", "u", "p", "iterations")
+    return {k: np.concatenate([np.asarray(part[i])[: b - a] for part, (a, b, _) in zip(parts, _pieces(len(hb)))])
+            for i, k in enumerate(names)}
+
+
+def _coupled_apply(kern, q):
+    """(ux, uy, depth) (3, H, W) under the traction and pressure q = (qx, qy, p) (3, H, W). The kernels are real
+    (cxx, cxy, cyy, cnn) or imaginary (the coupling zx, zy, given by their imaginary parts): the products are
+    written on the transforms' real and imaginary parts (a third faster than complex arithmetic on a CPU)."""
+    cxx, cxy, cyy, zx, zy, cnn = kern
+    f = jnp.fft.rfft2(q)
+    fr, fi = jnp.real(f), jnp.imag(f)
+    re = jnp.stack([cxx * fr[0] + cxy * fr[1] + zx * fi[2], cxy * fr[0] + cyy * fr[1] + zy * fi[2],
+                    cnn * fr[2] - zx * fi[0] - zy * fi[1]])
+    im = jnp.stack([cxx * fi[0] + cxy * fi[1] - zx * fr[2], cxy * fi[0] + cyy * fi[1] - zy * fr[2],
+                    cnn * fi[2] + zx * fr[0] + zy * fr[1]])
+    return jnp.fft.irfft2(lax.complex(re, im), s=q.shape[-2:])
+
+
+def _stick_one(held, force, kern, cell, tol, max_iter):
+    """The force-controlled stick solve of one press: (fields (3, H, W) = (ux, uy, depth) mm, s (2,) mm, its)."""
+    on = held.astype(jnp.float32)
+    n_on = jnp.sum(on)
+
+    def project(v):  # on the contact, zero mean per channel: what the uniform displacements leave
+        v = v * on
+        return v - on * (jnp.sum(v, (-2, -1), keepdims=True) / n_on)
+
+    t = jnp.stack([on * (force[0] / (n_on * cell)), on * (force[1] / (n_on * cell)), jnp.zeros_like(on)])
+    u = _coupled_apply(kern, t)
+    s = jnp.sqrt(jnp.sum((jnp.sum(u[:2] * on, (-2, -1)) / n_on) ** 2))  # the size of the displacement: the scale
+    r = -project(u)
+    rr = jnp.sum(r * r)
+
+    def cond(c):
+        it, t, r, d, rr = c
+        return (it < max_iter) & (rr > (tol * s) ** 2 * n_on)
+
+    def step(c):
+        it, t, r, d, rr = c
+        ad = project(_coupled_apply(kern, d))
+        a = rr / jnp.maximum(jnp.sum(d * ad), _TINY)
+        t, r = t + a * d, r - a * ad
+        rr_new = jnp.sum(r * r)
+        return it + 1, t, r, r + (rr_new / jnp.maximum(rr, _TINY)) * d, rr_new
+
+    it, t, *_ = lax.while_loop(cond, step, (0, t, r, r, rr))
+    fields = _coupled_apply(kern, t)
+    return fields, jnp.sum(fields[:2] * on, (-2, -1)) / n_on, it
+
+
+@functools.lru_cache(maxsize=32)
+def _stick_program(cell: float, tol: float, max_iter: int):
+    def run(held, force, kern):
+        return jax.vmap(lambda h, f: _stick_one(h, f, kern, cell, tol, max_iter))(held, force)
+
+    return jax.jit(run)
+
+
+def stick(held: np.ndarray, force: np.ndarray, layer: Layer, tol: float = 1e-4, max_iter: int = 500) -> dict:
+    """The stick solve of B presses: held (B, *layer.shape) bool, each a non-empty contact; force (B, 2) N the
+    tangential load. Returns numpy arrays: fields (B, 3, H, W) = (ux, uy, depth) mm, s (B, 2) the body's
+    displacement in mm, iterations (B,). The CG stops when the rms displacement error on the contact is below
+    tol x |s| (the reference's tolerance per mm of displacement)."""
+    held, force = np.asarray(held, bool), np.asarray(force, np.float32)
+    _, kern = _kernels(layer)
+    run = _stick_program(float(layer.dx) ** 2, float(tol), int(max_iter))
+    parts = [jax.device_get(run(_padded(held[a:b], m), _padded(force[a:b], m), kern)) for a, b, m in
+             _pieces(len(held))]
+    return {k: np.concatenate([np.asarray(part[i])[: b - a] for part, (a, b, _) in zip(parts, _pieces(len(held)))])
+            for i, k in enumerate(("fields", "s", "iterations"))}
