@@ -187,16 +187,10 @@ def render(cfg: dict, f: Factor, li: int, n: int) -> dict:
     size = dataset.render_size(nominal, cfg["data"]["render_size"])
     frame_sensor, bg_sensor = sensors_for(f.name, f.levels[li], nominal)
     p = presses(cfg, f, li, n, nominal)
-    images, forces, dropped = [], [], 0
-    for i in range(len(p["force"])):
-        try:
-            s = sim.press(p["shapes"][p["shape_index"][i]], frame_sensor, p["force"][i], p["x_mm"][i], p["y_mm"][i],
-                          p["yaw_deg"][i], tuple(p["tilt_deg"][i]), int(p["seed"][i]), size)
-        except ValueError:
-            dropped += 1
-            continue
-        images.append(s.image)
-        forces.append(s.force)
+    done = sim.press_many([p["shapes"][k] for k in p["shape_index"]], frame_sensor, p["force"], p["x_mm"],
+                          p["y_mm"], p["yaw_deg"], p["tilt_deg"], [int(v) for v in p["seed"]], size)
+    kept = [s for s in done if not isinstance(s, ValueError)]
+    images, forces, dropped = [s.image for s in kept], [s.force for s in kept], len(done) - len(kept)
     H, W = size
     return {"image": np.stack(images) if images else np.zeros((0, H, W, 3), np.uint8),
             "force": np.stack(forces) if forces else np.zeros((0, 3), np.float32),

@@ -108,17 +108,20 @@ class GraspTrial:
         self.offset_mm = rng.uniform(0, cfg.step_mm)  # where first contact falls between two steps
         self._closure = self._F_GRID / obj.stiffness_n_per_mm
         for sensor, pose in zip(self.sensors, self.poses):
-            self._closure = self._closure + np.array(
-                [self._penetration(sensor, pose, f) for f in self._F_GRID]
-            )
+            self._closure = self._closure + self._penetration(sensor, pose)
         self._frames: dict = {}
 
-    def _penetration(self, sensor, pose, f: float) -> float:
-        if f == 0:
-            return 0.0
-        return sim.press(self.shape, sensor, (0, 0, f), noise=False, size=(24, 32), **pose).meta[
-            "penetration_mm"
-        ]
+    def _penetration(self, sensor, pose) -> np.ndarray:
+        """The gel's penetration (mm) at each force of _F_GRID (0 at no force), one batch of presses."""
+        f = self._F_GRID[1:]
+        n = len(f)
+        done = sim.press_many([self.shape] * n, sensor, np.column_stack([np.zeros((n, 2)), f]),
+                              [pose["x_mm"]] * n, [pose["y_mm"]] * n, [pose["yaw_deg"]] * n,
+                              [pose["tilt_deg"]] * n, [0] * n, (24, 32), noise=False)
+        for s in done:
+            if isinstance(s, ValueError):
+                raise s
+        return np.concatenate([[0.0], [s.meta["penetration_mm"] for s in done]])
 
     def closure(self, step: int) -> float:
         """mm the jaws have closed past first contact at `step` (step 1 is the first in contact)."""

@@ -227,12 +227,13 @@ def render_push(push: Push, sensor, size) -> tuple[np.ndarray, np.ndarray]:
     """Camera frames of a push (N, H, W, 3) uint8 and the sensor's background frame."""
     sensor = sim.get_sensor(sensor) if isinstance(sensor, str) else sensor
     shape = get_contact(push.obj.contact)
-    frames = np.empty((len(push.t), *size, 3), np.uint8)
-    for i, (f, (x, y, yaw)) in enumerate(zip(push.force, push.pose)):
-        frames[i] = sim.press(
-            shape, sensor, f, x_mm=x, y_mm=y, yaw_deg=yaw, seed=push.seed * 100_003 + i, size=size
-        ).image
-    return frames, sensor.background(size)
+    n = len(push.t)
+    done = sim.press_many([shape] * n, sensor, push.force, push.pose[:, 0], push.pose[:, 1], push.pose[:, 2],
+                          np.zeros((n, 2)), [push.seed * 100_003 + i for i in range(n)], tuple(size))
+    for s in done:
+        if isinstance(s, ValueError):
+            raise s
+    return np.stack([s.image for s in done]) if n else np.empty((0, *size, 3), np.uint8), sensor.background(size)
 
 
 def weigh(pushes: list[Push], estimates: list[np.ndarray], duration_s: float | None = None) -> dict:
