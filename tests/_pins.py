@@ -8,6 +8,10 @@ pin records the CPU kind it was made on:
 - on another kind it must match within a tolerance measured between the two kinds (`close`), every string
   identical once its numbers are compared the same way.
 
+A pin with `"bitwise": false` (and a `"why"`) is held within the tolerance on every kind, its own included:
+one made before a change that moves the data by less than that tolerance (issue 30's batched simulator:
+images within 1 count) and not re-made on its kind since, since no machine of that kind was at hand.
+
 Pins live in tests/fixtures/pins/<name>/<kind>.json; `kind_name()` names this machine's kind.
 """
 
@@ -65,7 +69,7 @@ def load(name: str, jax_version: str) -> tuple[dict | None, list[dict]]:
         pin = json.loads(path.read_text())
         if pin.get("jax") != jax_version:
             continue
-        if own is None and _same_kind(pin["cpu"], here):
+        if own is None and pin.get("bitwise", True) and _same_kind(pin["cpu"], here):
             own = pin
         else:
             others.append(pin)
@@ -73,7 +77,7 @@ def load(name: str, jax_version: str) -> tuple[dict | None, list[dict]]:
 
 
 def strip_meta(pin: dict) -> dict:
-    return {k: v for k, v in pin.items() if k not in ("cpu", "jax")}
+    return {k: v for k, v in pin.items() if k not in ("cpu", "jax", "bitwise", "why")}
 
 
 def differences(got, want, path: str = "", atol: float = ATOL, rtol: float = RTOL) -> list[str]:

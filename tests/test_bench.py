@@ -167,3 +167,22 @@ def test_only_parts_write_their_own_report(tmp_path):
     res = bench.run_only("bf16", plan, tmp_path / "bf16", log=lambda *_: None)
     assert set(res["bf16_methods"]) == {"resnet_rd"} and res["ratios"]["speedup_bf16_resnet_rd"] > 0
     assert "val loss bf16/f32" in (tmp_path / "bf16" / "report.md").read_text()
+
+
+def test_only_sim_compares_the_batched_solves_with_the_reference(tmp_path):
+    """`--only sim` at a tiny size: rates of both paths per size and batch, their agreement on every indenter and
+    unseen object, one batch's peak memory; all in the report."""
+    plan = {**TINY, "sim_speed": {"sizes": {"24x32": (24, 32)}, "batches": (1, 4), "n": 4, "reference_n": 2,
+                                  "agreement_size": (24, 32), "agreement_per_shape": 1,
+                                  "agreement_sensors": ("mini-1-gel1", "digit"), "memory": (4, (24, 32)),
+                                  "dataset": None}}
+    res = bench.run_only("sim", plan, tmp_path / "sim", log=lambda *_: None)
+    r = res["sim_speed"]["rates"]["24x32"]
+    assert r["reference_s"] > 0 and set(r["batched_s"]) == {1, 4} and all(v > 0 for v in r["speedup"].values())
+    ag = res["sim_speed"]["agreement"]
+    assert set(ag) == {"mini-1-gel1", "digit"}
+    for v in ag.values():  # the same physics on both paths (the bench's own measure, loose: a tiny grid)
+        assert v["presses"] > 0 and v["refused_by_one"] == 0 and v["force_rel_max"] < 0.01
+    assert res["sim_speed"]["memory"]["peak_rss_mib"] > 0
+    text = (tmp_path / "sim" / "report.md").read_text()
+    assert "batched layer solves against the numpy reference" in text and "Agreement on the same presses" in text

@@ -26,3 +26,14 @@ def test_the_pin_of_this_cpu_kind_is_found(tmp_path, monkeypatch):
     assert own["v"] == "a" and [p["v"] for p in others] == ["b"]
     own, others = _pins.load("x", "2")
     assert own["v"] == "c" and others == []
+
+
+def test_a_pin_marked_not_bitwise_is_held_within_the_tolerance_on_its_own_kind(tmp_path, monkeypatch):
+    here = {"vendor": "V", "family": "1", "model": "2"}
+    monkeypatch.setattr(_pins, "PINS", tmp_path)
+    monkeypatch.setattr(_pins, "cpu_kind", lambda: here)
+    (tmp_path / "x").mkdir()
+    (tmp_path / "x" / "a.json").write_text(json.dumps({"cpu": {"vendor": "V"}, "jax": "1", "bitwise": False,
+                                                       "why": "made before a change", "v": 1}))
+    own, others = _pins.load("x", "1")
+    assert own is None and [_pins.strip_meta(p) for p in others] == [{"v": 1}]
