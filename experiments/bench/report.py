@@ -279,6 +279,43 @@ def bf16_table(bm: dict | None) -> str:
                  "val loss bf16/f32", "val force L1 bf16/f32"], rows))
 
 
+def sim_tables(ss: dict | None) -> str:
+    """The simulator's speed and agreement (`--only sim`; "" without it)."""
+    if not ss:
+        return ""
+    rates = ss["rates"]
+    batches = sorted({int(b) for v in rates.values() for b in v["batched_s"]})
+    rows = [[k, _f(v["reference_s"]), *(_f(v["batched_s"][b]) for b in batches),
+             _f(v["speedup"][batches[-1]], 2)] for k, v in rates.items()]
+    out = ["\n## The simulator: batched layer solves against the numpy reference\n",
+           "Presses per second in one process over mixed indenters with the dataset's ranges of force and pose (the "
+           "reference presses one at a time: its rate does not depend on a batch), measured in this run; compiling "
+           "is not counted.\n",
+           md_table(["render size", "reference presses/s", *(f"batched, batch {b}" for b in batches),
+                     f"speedup at batch {batches[-1]}"], rows)]
+    ag = ss.get("agreement")
+    if ag:
+        out += ["\nAgreement on the same presses (every indenter and unseen object, per sensor): the largest force "
+                "difference (relative), depth difference (um; max and 99th percentile over presses), presses whose "
+                "contact differs by a border cell, and the share of pixels more than 1 count apart.\n",
+                md_table(["sensor", "presses", "force", "depth max um", "depth p99 um", "presses > 1 um",
+                          "contact differs", "pixels > 1 count %", "refused by one"],
+                         [[k, v["presses"], f"{v['force_rel_max']:.1e}", _f(v["depth_um_max"], 3),
+                           _f(v["depth_um_p99"], 3), v["presses_over_1um"], v["contact_differs"],
+                           _f(100 * v["pixels_over_1_count"], 4), v["refused_by_one"]] for k, v in ag.items()])]
+    mem = ss.get("memory")
+    if mem:
+        out.append(f"\nPeak resident memory of a fresh process pressing one batch of {mem['batch']} at "
+                   f"{'x'.join(map(str, mem['render_size']))}: {_f(mem['peak_rss_mib'])} MiB "
+                   f"({_f(mem['batch_growth_mib'])} MiB above the process before the batch).\n")
+    ds = ss.get("dataset")
+    if ds:
+        out.append(f"\nThe {ds['preset']} dataset end to end ({ds['presses']:,} presses, {ds['workers']} worker "
+                   f"processes): {_f(ds['seconds'])} s; load average before {ds['load_before'][0]:.2f}, after "
+                   f"{ds['load_after'][0]:.2f}.\n")
+    return "\n".join(out)
+
+
 def only_report(res: dict) -> str:
     """report.md of `experiments.bench --only <part>`."""
     m = res["machine"]
@@ -290,6 +327,7 @@ def only_report(res: dict) -> str:
         f"{res['load_start'][0]:.1f}, end {res['load_end'][0]:.1f}; steal {_f(100 * steal)}%.\n",
         loop_table(_g(res, "data", "loop_efficiency")),
         bf16_table(res.get("bf16_methods")),
+        sim_tables(res.get("sim_speed")),
     ])
 
 

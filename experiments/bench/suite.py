@@ -34,6 +34,8 @@ PLANS = {
                   "resnet": {"preset": "smoke", "method": "resnet_rd", "size": 32, "batch": 8, "infer": (1,)}},
         "vit_b14": None, "timing": (1, 1, 2), "infer_timing": (1, 2, 2), "peak_n": 256,
         "sim": {"n": {"64x64": 10}, "sizes": {"64x64": (24, 32)}}, "data": {"per_shape": 4, "batches": 3},
+        "sim_speed": {"sizes": {"24x32": (24, 32)}, "batches": (1, 8), "n": 8, "reference_n": 4,
+                      "agreement_size": (24, 32), "agreement_per_shape": 1, "memory": (8, (24, 32)), "dataset": None},
         "workers": (0,), "scaling": {"base": "smoke", "batch": (4, 8), "size": (16, 32), "model": ((16, 1), (32, 2))},
         "dp": None, "bf16_acc": {"preset": "smoke", "steps": 12, "batch": 8}, "profile": True,
         "loop": {"train": 32, "val": 8, "epochs": 2, "val_every": (1, 2)},
@@ -45,6 +47,10 @@ PLANS = {
                   "resnet": {"preset": "quick", "method": "resnet_rd", "size": 64, "batch": 64, "infer": (1, 32)}},
         "vit_b14": {"batch": 1, "timing": (1, 1, 3)}, "timing": (2, 2, 3), "infer_timing": (3, 10, 3),
         "peak_n": 2048, "sim": {"n": {"64x64": 100, "native": 10}, "sizes": {"64x64": (48, 64), "native": (240, 320)}},
+        # the layer solves batched against the numpy reference per render size and batch; the quick dataset
+        "sim_speed": {"sizes": {"48x64": (48, 64), "120x160": (120, 160), "240x320": (240, 320)},
+                      "batches": (1, 8, 32), "n": 128, "reference_n": 32, "agreement_size": (48, 64),
+                      "agreement_per_shape": 3, "memory": (256, (240, 320)), "dataset": "quick"},
         "data": {"per_shape": 40, "batches": 30}, "workers": (0, 2),
         "scaling": {"base": "quick", "batch": (16, 64), "size": (32, 64), "model": ((64, 2), (128, 4))},
         "dp": {"batch": 64, "warmup": 1, "steps": 2, "rounds": 2},
@@ -339,12 +345,13 @@ def bf16_methods(plan: dict, src) -> dict:
     return out
 
 
-ONLY = {"loop": "the training loop against its own step", "bf16": "bfloat16 against float32, every method"}
+ONLY = {"loop": "the training loop against its own step", "bf16": "bfloat16 against float32, every method",
+        "sim": "the simulator's batched solves against the numpy reference, and a preset's dataset"}
 
 
 def run_only(part: str, mode: str | dict, out: str | Path | None = None, log=print) -> dict:
-    """One part of `mode` (a PLANS name or a plan dict with a "name") on its own (`--only loop|bf16`), on a
-    split the simulator renders: results.json and report.md in results/bench-<part>-<mode>."""
+    """One part of `mode` (a PLANS name or a plan dict with a "name") on its own (`--only loop|bf16|sim`; loop and
+    bf16 on a split the simulator renders): results.json and report.md in results/bench-<part>-<mode>."""
     from experiments.bench import loop as bd
     from experiments.bench import report as bench_report
     from ffjax import data
@@ -358,14 +365,19 @@ def run_only(part: str, mode: str | dict, out: str | Path | None = None, log=pri
                  "load_start": list(os.getloadavg()), "data": {}}
     case = plan["cases"]["quick_vit"]
     with Section(res, part, log), tempfile.TemporaryDirectory() as tmp:
-        cfg = bj.case_cfg(case["preset"])
-        cfg["data"]["render_size"] = tuple(plan["sim"]["sizes"]["64x64"])
-        folder, _ = bd.make_split(Path(tmp), cfg, "train", 0, plan["data"]["per_shape"])
-        src = data.open_split(folder)
-        if part == "loop":
-            res["data"]["loop_efficiency"] = run_loop(plan, src, case["size"], case["batch"])
+        if part == "sim":
+            from experiments.bench import sim as bench_sim
+
+            res["sim_speed"] = bench_sim.run(plan["sim_speed"], log)
         else:
-            res["bf16_methods"] = bf16_methods(plan, src)
+            cfg = bj.case_cfg(case["preset"])
+            cfg["data"]["render_size"] = tuple(plan["sim"]["sizes"]["64x64"])
+            folder, _ = bd.make_split(Path(tmp), cfg, "train", 0, plan["data"]["per_shape"])
+            src = data.open_split(folder)
+            if part == "loop":
+                res["data"]["loop_efficiency"] = run_loop(plan, src, case["size"], case["batch"])
+            else:
+                res["bf16_methods"] = bf16_methods(plan, src)
     res["ratios"] = ratios(res)
     res["wall_s"], res["load_end"] = time.perf_counter() - t_start, list(os.getloadavg())
     write_json(out / "results.json", res)

@@ -1,0 +1,131 @@
+"""The simulator's side of `experiments.bench --only sim`: presses per second of the batched layer solves
+(ffjax.sim.batched, what the simulator runs) against the numpy reference (the path before them, kept for this
+and for the agreement checks), in one run, per render size and batch size; their agreement on every indenter,
+unseen object and sensor; the peak memory of one batch; and a preset's whole dataset, end to end."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+import configs
+from ffjax import sim
+from ffjax.sim import dataset
+
+
+def presses(n: int, seed: int = 0, shapes=None) -> dict:
+    """n presses over `shapes` (default: the indenters, in turn) with the dataset's ranges of force and pose."""
+    rng = np.random.default_rng(seed)
+    shapes = list(shapes or sim.INDENTERS)
+    fz = rng.uniform(0.05, 15.0, n)
+    tilt = rng.uniform(-7.0, 7.0, (n, 2))
+    shear = fz[:, None] * np.tan(np.radians(tilt)) + rng.normal(0, 0.06, (n, 2)) * fz[:, None]
+    return {"shape": [shapes[i % len(shapes)] for i in range(n)],
+            "forces": np.column_stack([np.clip(shear, -2, 2), fz]),
+            "x_mm": rng.uniform(-2.0, 2.0, n), "y_mm": rng.uniform(-1.5, 1.5, n), "yaw_deg": rng.uniform(-180, 180, n),
+            "tilt_deg": tilt, "seeds": np.arange(n)}
+
+
+def _press(p: dict, sensor: str, size, lo: int, hi: int, reference: bool = False) -> dict:
+    return sim.press_batch(p["shape"][lo:hi], sensor, p["forces"][lo:hi], p["x_mm"][lo:hi], p["y_mm"][lo:hi],
+                           p["yaw_deg"][lo:hi], p["tilt_deg"][lo:hi], p["seeds"][lo:hi], tuple(size),
+                           reference=reference)
+
+
+def _rate(p: dict, sensor: str, size, n: int, batch: int, reference: bool = False) -> float:
+    """Presses per second over the first n presses, pressed `batch` at a time (after one warm-up batch, so
+    compiling is not counted)."""
+    _press(p, sensor, size, 0, batch, reference)
+    t0 = time.perf_counter()
+    for a in range(0, n, batch):
+        _press(p, sensor, size, a, min(a + batch, n), reference)
+    return n / (time.perf_counter() - t0)
+
+
+def rates(sizes: dict, batches, n: int, reference_n: int, sensor: str = "mini-1-gel1") -> dict:
+    """{size name: {"reference_s", "batched": {batch: presses/s}, "speedup": {batch: ratio}}}, all in this run."""
+    p = presses(max(n, reference_n) + max(batches), seed=1)
+    out = {}
+    for name, size in sizes.items():
+        ref = _rate(p, sensor, size, reference_n, 1, reference=True)
+        new = {int(b): _rate(p, sensor, size, n, int(b)) for b in batches}
+        out[name] = {"render_size": list(size), "reference_s": ref, "batched_s": new,
+                     "speedup": {b: r / ref for b, r in new.items()}, "n": n, "reference_n": reference_n}
+    return out
+
+
+def agreement(size, per_shape: int, sensors=None) -> dict:
+    """The batched path against the reference on the same presses: every indenter and unseen object, per sensor.
+    Forces (relative), depth (um), the share of pixels more than 1 count apart, the presses whose contact
+    differs by a cell (there the depth can differ by a few um near that cell), and presses one path refused
+    and the other did not (none expected)."""
+    shapes = list(sim.INDENTERS) + list(sim.UNSEEN_OBJECTS)
+    out = {}
+    for key in sensors or sim.SENSOR_NAMES:
+        sensor = sim.get_sensor(key)
+        p = presses(per_shape * len(shapes), seed=2, shapes=shapes)
+        args = ([sim.get_shape(s) for s in p["shape"]], sensor, p["forces"], p["x_mm"], p["y_mm"], p["yaw_deg"],
+                p["tilt_deg"], [int(v) for v in p["seeds"]], tuple(size))
+        new, ref = sim.press_many(*args), sim.press_many(*args, reference=True)
+        both = [(a, b) for a, b in zip(new, ref) if not isinstance(a, ValueError) and not isinstance(b, ValueError)]
+        depth = np.array([np.abs(a.depth - b.depth).max() for a, b in both]) * 1000
+        image = np.stack([np.abs(a.image.astype(np.int16) - b.image) for a, b in both])
+        force = max(float(np.abs(a.force - b.force).max() / np.abs(b.force).max()) for a, b in both)
+        out[key] = {"presses": len(both), "refused_by_one": sum(isinstance(a, ValueError) != isinstance(b, ValueError)
+                                                                for a, b in zip(new, ref)),
+                    "force_rel_max": force, "depth_um_max": float(depth.max()),
+                    "depth_um_p99": float(np.percentile(depth, 99)), "presses_over_1um": int((depth > 1).sum()),
+                    "contact_differs": sum(a.meta["contact_area_mm2"] != b.meta["contact_area_mm2"] for a, b in both),
+                    "pixels_over_1_count": float((image > 1).mean()), "pixels_differ": float((image > 0).mean())}
+    return out
+
+
+_MEMORY = """
+import json, resource, sys
+import numpy as np
+from experiments.bench import sim as bs
+batch, h, w = (int(v) for v in sys.argv[1:4])
+p = bs.presses(batch, seed=3)
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+bs._press(p, "mini-1-gel1", (h, w), 0, batch)
+after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps({"peak_rss_mib": after / 1024, "batch_growth_mib": (after - before) / 1024}))
+"""
+
+
+def peak_memory(batch: int, size) -> dict:
+    """Peak resident memory of a fresh process pressing one batch (after importing everything), in MiB."""
+    r = subprocess.run([sys.executable, "-c", _MEMORY, str(batch), *map(str, size)], capture_output=True, text=True,
+                       check=True, env={**os.environ, "FFJAX_CACHE": "off"})
+    return {"batch": batch, "render_size": list(size), **json.loads(r.stdout.strip().splitlines()[-1])}
+
+
+def dataset_time(preset: str, workers: int | None = None) -> dict:
+    """`ffjax.sim.dataset.generate` of a preset's whole dataset into a temporary folder, timed, with the load."""
+    with tempfile.TemporaryDirectory() as tmp:
+        load = os.getloadavg()
+        t0 = time.perf_counter()
+        m = dataset.generate(configs.get(preset), tmp, workers=workers, progress=False)
+        return {"preset": preset, "presses": m["generation"]["samples"], "workers": m["generation"]["workers"],
+                "seconds": time.perf_counter() - t0, "load_before": list(load), "load_after": list(os.getloadavg())}
+
+
+def run(plan: dict, log=print) -> dict:
+    """Every measurement of the plan's "sim_speed" section."""
+    out = {"rates": rates(plan["sizes"], plan["batches"], plan["n"], plan["reference_n"])}
+    top = max(plan["batches"])
+    log(f"[bench] sim speedup at batch {top}: "
+        + ", ".join(f"{k} {v['speedup'][top]:.2f}x" for k, v in out["rates"].items()))
+    out["agreement"] = agreement(tuple(plan["agreement_size"]), plan["agreement_per_shape"],
+                                 plan.get("agreement_sensors"))
+    out["memory"] = peak_memory(*plan["memory"])
+    if plan.get("dataset"):
+        out["dataset"] = dataset_time(plan["dataset"])
+        log(f"[bench] {plan['dataset']} dataset: {out['dataset']['seconds']:.0f} s")
+    return out
