@@ -23,7 +23,7 @@ def main(argv=None) -> int:
                          "presses in 4-6 min")
     ap.add_argument("--out", required=True)
     ap.add_argument("--force", action="store_true", help="delete a dataset made with another config")
-    ap.add_argument("--workers", type=int, default=None, help="processes (default: CPU count, max 8)")
+    ap.add_argument("--workers", type=int, default=None, help="processes (default: CPU count, max 8; one on a GPU)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override, e.g. "
                     "data.train_per_indenter=100")
     ap.add_argument("--quiet", action="store_true")

@@ -14,7 +14,9 @@ it has converged (a convergence mask), its FFTs batched with the others'. float3
   One right-hand side instead of two, the same solution (linear in the force).
 
 Batches are padded to one of BATCHES (copies of the first press, dropped after), so a sensor and grid compile
-at most len(BATCHES) programs per solve; larger batches are cut into pieces of the largest size.
+at most len(BATCHES) programs per solve; larger batches are cut into pieces of max_batch() presses: 32 on a
+GPU, 8 on a CPU, where a batch runs until its slowest press converges and batching gains nothing (measured by
+`python -m experiments.bench --only sim`: batch 32 at 0.7-0.8x the rate of batch 8).
 """
 
 from __future__ import annotations
@@ -31,9 +33,20 @@ from jax import lax
 from ffjax.sim.elastic_layer import FAR, Layer
 
 BATCHES = (1, 8, 32)
+MAX_BATCH: int | None = None  # None: max_batch() chooses by device; the benchmark sets it to time each size
 RESTART = 1e-3  # x thickness: an approach that moves more than this in one iteration restarts the CG directions
 RUNAWAY = 200  # iterations after which a press beyond the refused approach stops
 _TINY = 1e-30  # guards divisions that are 0 / 0 only for a press already frozen
+
+
+def on_accelerator() -> bool:
+    """Whether jax runs on a GPU/TPU here (the solves then run there)."""
+    return jax.default_backend() != "cpu"
+
+
+def max_batch() -> int:
+    """The most presses one call of a solve takes: MAX_BATCH when set, else 32 on an accelerator, 8 on a CPU."""
+    return MAX_BATCH or (BATCHES[-1] if on_accelerator() else 8)
 
 
 def use_disk_cache() -> Path | None:
@@ -166,7 +179,7 @@ def _kernels(layer: Layer):
 
 def _pieces(n: int):
     """(start, stop, padded size) of the calls a batch of n presses takes."""
-    top = BATCHES[-1]
+    top = max_batch()
     for a in range(0, n, top):
         m = min(top, n - a)
         yield a, a + m, next(b for b in BATCHES if b >= m)

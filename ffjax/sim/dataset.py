@@ -328,8 +328,9 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
     if manifest_file.is_file():
         manifest_file.unlink()  # incomplete again until every shard is back
     todo_n = sum(t[3] for t in tasks)
-    if workers is None:  # starting processes costs ~2 s: not worth it for a few thousand presses
-        workers = 1 if todo_n < 2000 else min(os.cpu_count() or 1, 8)
+    if workers is None:  # starting processes costs ~2 s: not worth it for a few thousand presses. On a GPU one
+        # process: the device runs a whole batch, and each process would claim most of its memory
+        workers = 1 if todo_n < 2000 or batched.on_accelerator() else min(os.cpu_count() or 1, 8)
     workers = max(1, min(workers, len(tasks)))
     t0 = time.perf_counter()
     with tqdm(total=total, initial=total - todo_n, unit="press", desc=f"dataset {out.name}",
