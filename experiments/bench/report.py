@@ -303,12 +303,17 @@ def sim_tables(ss: dict | None) -> str:
     if ag:
         out += ["\nAgreement on the same presses (every indenter and unseen object, per sensor): the largest force "
                 "difference (relative), depth difference (um; max and 99th percentile over presses), presses whose "
-                "contact differs by a border cell, and the share of pixels more than 1 count apart.\n",
+                "contact differs by a border cell, and the share of pixels more than 1 count apart. The presses over "
+                "1 um are pressed again with the reference converged 100x further (pressure 1e-8, approach 1e-6 of "
+                "the thickness): the last two columns are each path's largest depth difference to that (um).\n",
                 md_table(["sensor", "presses", "force", "depth max um", "depth p99 um", "presses > 1 um",
-                          "contact differs", "pixels > 1 count %", "refused by one"],
+                          "contact differs", "pixels > 1 count %", "refused by one", "batched to converged",
+                          "reference to converged"],
                          [[k, v["presses"], f"{v['force_rel_max']:.1e}", _f(v["depth_um_max"], 3),
                            _f(v["depth_um_p99"], 3), v["presses_over_1um"], v["contact_differs"],
-                           _f(100 * v["pixels_over_1_count"], 4), v["refused_by_one"]] for k, v in ag.items()])]
+                           _f(100 * v["pixels_over_1_count"], 4), v["refused_by_one"],
+                           *((_f(v["over_1um_to_converged_um"][p], 3) if v["presses_over_1um"] else "-")
+                             for p in ("batched", "reference"))] for k, v in ag.items()])]
     mem = ss.get("memory")
     if mem:
         out.append(f"\nPeak resident memory of a fresh process pressing one batch of {mem['batch']} at "

@@ -19,6 +19,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 
@@ -32,6 +33,7 @@ SOLVE_MARGIN_T = 2.0  # layer beyond the pad in the solve, x thickness: its resp
 _EPS = np.linspace(0.0, 0.98, 4096)  # compressive strain table for psi and its inverse
 _PSI = ((1.0 - _EPS) ** -2 - (1.0 - _EPS)) / 3.0
 _OUTER_TOL = 1e-4  # fixed point on the approach: stop when it moves less than this x thickness
+_INNER_TOL = 1e-6  # the reference's contact solve: stop when the pressure changes less than this (relative)
 # Below a nanonewton a press is no contact: far under any sensor's resolution, and a subnormal force
 # (5e-324 N, found by the property tests) spread over the body underflows the pressure to 0, leaving no
 # contact cell for the solve to balance.
@@ -138,12 +140,25 @@ def solve_normal_batch(hs, mm_per_px: float, shear_mpa: float, thickness: float,
     return out
 
 
+@contextlib.contextmanager
+def reference_tolerance(inner: float, outer: float):
+    """The numpy reference's normal solve run to other tolerances inside the block (the benchmark converges it
+    further to tell solver tolerance from disagreement)."""
+    global _INNER_TOL, _OUTER_TOL
+    before = _INNER_TOL, _OUTER_TOL
+    _INNER_TOL, _OUTER_TOL = inner, outer
+    try:
+        yield
+    finally:
+        _INNER_TOL, _OUTER_TOL = before
+
+
 def _reference_normal(hb: np.ndarray, fz: float, layer, thickness: float):
     """(delta, u, p) of the fixed point on the approach with the numpy reference contact solve."""
     body = hb < elastic_layer.FAR / 2
     target, delta, p = hb, None, None
     for _ in range(30):  # fixed point on the approach: the stiffened target depends on it
-        r = elastic_layer.solve_contact(target, layer, fz, tol=1e-6, p0=p)
+        r = elastic_layer.solve_contact(target, layer, fz, tol=_INNER_TOL, p0=p)
         p = r["p"]
         on = r["contact"]
         new = float(np.mean(hb[on] + soften(r["u"][on], thickness)))
