@@ -285,6 +285,12 @@ def _prepare(out: Path, g: dict, force: bool) -> None:
     _write_text(cfg_file, json.dumps(g, indent=1))
 
 
+def default_workers(presses: int, at_least: int) -> int:
+    """Processes to simulate `presses` in: the CPU count (up to 8) from `at_least` presses on; one below it, and
+    one on a GPU, which runs a whole batch at once and would give each process most of its memory."""
+    return 1 if presses < at_least or batched.on_accelerator() else min(os.cpu_count() or 1, 8)
+
+
 def generate(cfg: dict, out, force: bool = False, workers: int | None = None, progress: bool = True) -> dict:
     """Write (or finish, or reuse) every split of `cfg` under `out`; returns the manifest dict."""
 
@@ -328,9 +334,8 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
     if manifest_file.is_file():
         manifest_file.unlink()  # incomplete again until every shard is back
     todo_n = sum(t[3] for t in tasks)
-    if workers is None:  # starting processes costs ~2 s: not worth it for a few thousand presses. On a GPU one
-        # process: the device runs a whole batch, and each process would claim most of its memory
-        workers = 1 if todo_n < 2000 or batched.on_accelerator() else min(os.cpu_count() or 1, 8)
+    if workers is None:  # starting processes costs ~2 s: not worth it for a few thousand presses
+        workers = default_workers(todo_n, 2000)
     workers = max(1, min(workers, len(tasks)))
     t0 = time.perf_counter()
     with tqdm(total=total, initial=total - todo_n, unit="press", desc=f"dataset {out.name}",

@@ -27,7 +27,7 @@ from tqdm import tqdm
 from ffjax import sim
 from ffjax.data.preprocess import to_unit
 from ffjax.files import atomic_write, atomic_write_text
-from ffjax.sim.dataset import render_size
+from ffjax.sim.dataset import default_workers, render_size
 
 VERSION = 1
 PROCEDURAL_KINDS = ("pink_noise", "shapes", "gratings", "blobs", "shaded_relief")
@@ -68,13 +68,14 @@ def load_or_build(cfg: dict, cache_dir: str | os.PathLike | None = None, progres
 
 def build(settings: dict, progress: bool = False, workers: int | None = None):
     """Generate the corpus; meta records each frame's kind and (for sim frames) shape and sensor. The sim
-    frames (~0.1 s each: the gel's contact solve) are spread over `workers` processes (default: the CPU
-    count, up to 8, when there are enough of them to pay for starting the processes); every frame has its
+    frames (~0.05 s each: the gel's contact solve, one press at a time) are spread over `workers` processes
+    (default: dataset.default_workers: the CPU count, up to 8, when there are enough of them to pay for
+    starting the processes; one on a GPU); every frame has its
     own generator, so the result does not depend on the split."""
     n, size = settings["size"], settings["input_size"]
     n_sim = int(round(n * settings["sim_fraction"]))
     if workers is None:
-        workers = min(os.cpu_count() or 1, 8) if n_sim >= 400 else 1
+        workers = default_workers(n_sim, 400)
     chunks = [(lo, min(lo + 64, n)) for lo in range(0, n, 64)]
     images = np.empty((n, size, size, 3), np.uint8)
     kinds, frames = [None] * n, [None] * n
