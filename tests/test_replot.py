@@ -52,7 +52,7 @@ def test_replot_refuses_other_folders(tmp_path):
     with pytest.raises(FileNotFoundError, match="results.json"):
         replot.replot(tmp_path)
     (tmp_path / "results.json").write_text('{"cells": []}')
-    with pytest.raises(ValueError, match="not from experiments.ablation"):
+    with pytest.raises(ValueError, match="not from an experiment that re-renders"):
         replot.replot(tmp_path)
 
 

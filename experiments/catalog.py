@@ -1,0 +1,188 @@
+"""Every experiment that publishes a result, as data: its name, the command that makes it, what it answers, whose
+trained runs it reuses, which sources its numbers and its figures come from, and how its results.json is told
+apart. `experiments.reproduce` runs them in order, `experiments.replot` re-renders them, `experiments.status`
+says which published result is stale; adding an experiment here is the only edit any of them needs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+# what every experiment's numbers come from: the library, the presets and the experiments' shared machinery
+_CORE = ("ffjax", "configs", "pyproject.toml", "experiments/common.py", "experiments/kernel.py",
+         "experiments/paper_numbers.py")
+
+
+@dataclasses.dataclass(frozen=True)
+class Experiment:
+    """One published experiment.
+
+    name: its folder in a preset's results tree (docs/results/<preset>/<name>); module: run as
+    `python -m <module>`; question: what it answers, for the index; args(preset, work): its flags beyond
+    --out in experiments.reproduce's tree `work` (WORK/ablation holds the runs it reuses); reuses: the
+    experiment whose trained runs it reads;
+    numbers: the sources (files or folders) its numbers depend on beyond the library (a change there makes it
+    stale); figures: the sources of its tables' text and plots (a change there needs only `experiments.replot`);
+    matches: whether a results.json is this experiment's; replot: re-renders a folder from its results.json."""
+
+    name: str
+    module: str
+    question: str
+    matches: Callable[[dict], bool]
+    replot: Callable | None = None
+    args: Callable = lambda preset, work: ["--preset", preset]
+    reuses: str | None = None
+    numbers: tuple = ()
+    figures: tuple = ()
+    in_pipeline: bool = True
+
+    @property
+    def number_sources(self) -> tuple:
+        """Every source its numbers depend on: the library's and its own."""
+        return _CORE + self.numbers
+
+
+def _replot_ablation(results: dict, folder) -> None:
+    from experiments import tables, training_report
+
+    results["findings"] = tables.findings(results)  # the verdicts too: written by the code of the run's day
+    tables.write_all(results, folder)
+    if results.get("training"):
+        training_report.write(results["training"], folder, results["preset"], results.get("seeds", []),
+                              results.get("commit", "?"))
+
+
+def _replot_stability(results: dict, folder) -> None:
+    from experiments import stability
+
+    stability.write_all(results, folder)
+
+
+def _replot_sweep(results: dict, folder) -> None:
+    from experiments import sweep_loss
+
+    sweep_loss.write_all(results, folder)
+
+
+def _replot_pareto(results: dict, folder) -> None:
+    from experiments import pareto
+
+    pareto.write_all({**results, "markdown": pareto.markdown(results)}, folder)
+
+
+def _replot_bench(results: dict, folder) -> None:
+    from experiments.bench import report
+
+    report.plots(results, folder)  # the figures only: report.md is tied to the bench version that ran
+
+
+def _replot_downstream(results: dict, folder) -> None:
+    from ffjax.tasks import report
+
+    report.plots(results, folder, results.get("push_trace"))  # figures only: the tables come with the run
+
+
+def _replot_probe(kind: str) -> Callable:
+    def replot(results: dict, folder) -> None:
+        import importlib
+        from pathlib import Path
+
+        importlib.import_module(f"experiments.diagnostics.{kind}").plot(results, Path(folder) / f"{kind}.png")
+
+    return replot
+
+
+def _has(*keys) -> Callable[[dict], bool]:
+    return lambda r: all(k in r for k in keys)
+
+
+SEEDS = {"smoke": 1}  # seeds per trained cell in the pipeline; 3 elsewhere (smoke checks the plumbing)
+
+
+def _seeds(preset: str) -> list:
+    return ["--seeds", str(SEEDS.get(preset, 3))]
+
+
+def _reads_ablation(preset: str, work) -> list:
+    return ["--preset", preset, "--ablation", str(work / "ablation")]
+
+
+def _trains_seeds(preset: str, work) -> list:
+    """Reads the ablation's runs and trains its own cells with the pipeline's seeds."""
+    return [*_reads_ablation(preset, work), *_seeds(preset)]
+
+
+def _bench(only: str | None) -> Callable:
+    def args(preset: str, work) -> list:
+        mode = {"smoke": ["--smoke"], "quick": ["--quick"]}.get(preset, [])
+        return [*mode, *(["--only", only] if only else [])]
+
+    return args
+
+
+EXPERIMENTS = (
+    Experiment("ablation", "experiments.ablation",
+               "Tables I-III: every method's force error on unseen objects, other sensors, and after calibration; "
+               "the training report", _has("table1"), _replot_ablation,
+               args=lambda preset, work: ["--preset", preset, *_seeds(preset)],
+               numbers=("experiments/ablation.py", "experiments/training_report.py"),
+               figures=("experiments/tables.py",)),
+    Experiment("sweep_loss", "experiments.sweep_loss",
+               "Does the depth head help? DINO's error against the depth-loss weight beta/alpha",
+               _has("per_beta"), _replot_sweep, args=_trains_seeds,
+               reuses="ablation", numbers=("experiments/sweep_loss.py",), figures=("experiments/tables.py",)),
+    Experiment("pareto", "experiments.pareto",
+               "Speed against accuracy: error against latency, training throughput and size, per method and size",
+               _has("cells", "fronts"), _replot_pareto, args=_trains_seeds, reuses="ablation",
+               numbers=("experiments/pareto.py",)),
+    Experiment("stability", "experiments.stability",
+               "Where each method fails: the seed spread and the error against noise, lighting, force, shear, "
+               "drift and more", _has("factors", "seed_spread"), _replot_stability, args=_reads_ablation,
+               reuses="ablation", numbers=("experiments/stability.py",)),
+    Experiment("downstream", "experiments.downstream",
+               "Weighing by pushing (Table IV) and grasping with the trained models in the loop",
+               _has("pushing", "grasping"), _replot_downstream, args=_reads_ablation, reuses="ablation",
+               numbers=("experiments/downstream.py",)),
+    Experiment("bench-sim", "experiments.bench",
+               "The simulator's speed: batched solves against the numpy reference, their agreement, a dataset's time",
+               lambda r: r.get("experiment") == "bench" and "sim_speed" in r, _replot_bench,
+               args=_bench("sim"), numbers=("experiments/bench",)),
+    Experiment("bench", "experiments.bench",
+               "ffjax against PyTorch: train and inference speed, scaling, the loop against its step",
+               lambda r: r.get("experiment") == "bench", _replot_bench, args=_bench(None),
+               numbers=("experiments/bench",), in_pipeline=False),
+    Experiment("contact_probe", "experiments.diagnostics.contact_probe",
+               "Where a contact's edge is read: the layer's contact against the rendered frame",
+               _has("edge_mm", "per_shape"), _replot_probe("contact_probe"),
+               numbers=("experiments/diagnostics",), in_pipeline=False),
+    Experiment("layer_check", "experiments.diagnostics.layer_check",
+               "Is the gel's solve converged in its margin and grid?", _has("margin_thicknesses"),
+               _replot_probe("layer_check"), numbers=("experiments/diagnostics",), in_pipeline=False),
+    Experiment("object_probe", "experiments.diagnostics.object_probe",
+               "What a trained model reads of an object: signal against readout", _has("signal", "readout"),
+               _replot_probe("object_probe"), numbers=("experiments/diagnostics",), in_pipeline=False),
+    Experiment("shear_probe", "experiments.diagnostics.shear_probe",
+               "How much of a shear the frames carry, and which features read it", _has("physics"),
+               numbers=("experiments/diagnostics",), in_pipeline=False),
+    Experiment("faults", "tests.reliability.faults",
+               "What holds and what fails when a user or a fault misuses the tools", _has("kills_per_part"),
+               numbers=("tests/reliability",), in_pipeline=False),
+)
+
+
+def get(name: str) -> Experiment:
+    for e in EXPERIMENTS:
+        if e.name == name:
+            return e
+    raise KeyError(f"unknown experiment {name!r}; known: {', '.join(e.name for e in EXPERIMENTS)}")
+
+
+def kind_of(results: dict) -> Experiment | None:
+    """The experiment a results.json comes from (the first that matches), or None."""
+    return next((e for e in EXPERIMENTS if e.matches(results)), None)
+
+
+def pipeline() -> tuple:
+    """The experiments `experiments.reproduce` runs, in order (an experiment after the one it reuses)."""
+    return tuple(e for e in EXPERIMENTS if e.in_pipeline)

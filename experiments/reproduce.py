@@ -1,0 +1,110 @@
+"""Bring every published result of a preset up to date from the current commit, in one command.
+
+    python -m experiments.reproduce --preset {smoke,quick,full} [--only NAME ...] [--work DIR] [--publish DIR]
+
+Runs each experiment of experiments.catalog's pipeline in order (the ablation with 3 seeds, the loss sweep, the
+speed/accuracy chart, stability, downstream, the simulator's benchmark), each into WORK/<name> (default WORK:
+results/reproduce-<preset>); an experiment that reads trained runs reads the ablation's (--ablation
+WORK/ablation), so nothing is trained twice, and every stage is cached: a killed or repeated call continues
+where it stopped. Then each result folder, without its trained runs, is copied to PUBLISH/<name> (default:
+docs/results/<preset>; --no-publish leaves docs alone), with reproduce.json (commit, preset, each experiment's
+wall time and the load) and the index page (experiments.status --index).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import configs
+from experiments import catalog, common, status
+
+# published beside the tables: everything an experiment writes except its trained runs and its caches
+_NOT_PUBLISHED = ("runs", "checkpoints", "cache", "frames")
+
+
+def argv_for(exp: catalog.Experiment, preset: str, work: Path, quiet: bool) -> list[str]:
+    """The command line of one experiment in the pipeline."""
+    return [*exp.args(preset, work), "--out", str(work / exp.name), *(["--quiet"] if quiet else [])]
+
+
+def run_one(exp: catalog.Experiment, argv: list[str]) -> float:
+    """Run an experiment's main(argv) in this process; its wall seconds."""
+    module = importlib.import_module(exp.module)
+    main = getattr(module, "main", None) or importlib.import_module(f"{exp.module}.suite").main
+    t0 = time.perf_counter()
+    main(argv)
+    return round(time.perf_counter() - t0, 1)
+
+
+def publish(src: Path, dst: Path) -> None:
+    """Copy a result folder without its trained runs and caches, replacing what dst held."""
+    tmp = dst.with_name(dst.name + ".partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    shutil.copytree(src, tmp, ignore=shutil.ignore_patterns(*_NOT_PUBLISHED, "*.partial", "stage.json"))
+    if dst.exists():
+        shutil.rmtree(dst)
+    tmp.rename(dst)
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
+    ap.add_argument("--preset", default="quick", choices=configs.PRESETS)
+    ap.add_argument("--only", nargs="+", default=None, metavar="NAME",
+                    help=f"a subset of the pipeline ({', '.join(e.name for e in catalog.pipeline())})")
+    ap.add_argument("--work", default=None, help="where the experiments run and keep their trained runs "
+                                                  "(default: results/reproduce-<preset>)")
+    ap.add_argument("--publish", default=None, help="where the results are published (default: docs/results/<preset>)")
+    ap.add_argument("--no-publish", action="store_true", help="run only; leave the published results as they are")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    args = ap.parse_args(argv)
+    chosen = catalog.pipeline()
+    if args.only:
+        names = {e.name for e in chosen}
+        for n in args.only:
+            if n not in names:
+                ap.error(f"--only {n}: not in the pipeline ({', '.join(sorted(names))})")
+        chosen = tuple(e for e in chosen if e.name in args.only)
+    work = Path(args.work or common.ROOT / "results" / f"reproduce-{args.preset}").absolute()
+    dest = None if args.no_publish else Path(args.publish or common.ROOT / "docs" / "results" / args.preset)
+    from ffjax import cli
+
+    cli.check_out(ap, work, "--work")
+    if dest is not None:
+        cli.check_out(ap, dest, "--publish")
+    commit = common.git_commit()
+    print(f"{common.prog() or 'reproduce'}: preset {args.preset}, commit {commit[:12]}, "
+          f"{len(chosen)} experiments into {work}", file=sys.stderr)
+    record = {"preset": args.preset, "commit": commit, "load_start": list(os.getloadavg()), "experiments": {}}
+    t0 = time.perf_counter()
+    for exp in chosen:
+        line = argv_for(exp, args.preset, work, args.quiet)
+        print(f"[reproduce] {exp.name}: python -m {exp.module} {' '.join(line)}", file=sys.stderr, flush=True)
+        record["experiments"][exp.name] = {"argv": line, "wall_s": run_one(exp, line),
+                                           "load_after": list(os.getloadavg())}
+    record["wall_s"] = round(time.perf_counter() - t0, 1)
+    record["load_end"] = list(os.getloadavg())
+    common.write_json(work / "reproduce.json", record)
+    if dest is not None:
+        dest.mkdir(parents=True, exist_ok=True)
+        for exp in chosen:
+            publish(work / exp.name, dest / exp.name)
+        previous = common.read_json(dest / "reproduce.json") or {}
+        merged = {**previous, **record, "experiments": {**previous.get("experiments", {}), **record["experiments"]}}
+        common.write_json(dest / "reproduce.json", merged)
+        rows = status.check_all(dest)
+        common.write_text(dest / "README.md", status.index(rows, dest, merged))
+        print(f"published {len(chosen)} results to {dest} (index: {dest / 'README.md'})", file=sys.stderr)
+    return record
+
+
+if __name__ == "__main__":
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

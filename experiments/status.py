@@ -1,0 +1,189 @@
+"""Which published results are current: each results folder against the code at HEAD.
+
+    python -m experiments.status [ROOT] [--stale] [--check] [--index]
+
+A result records the commit it ran (results.json "commit"); its experiment (experiments.catalog) names the
+sources its numbers and its figures come from. At HEAD a result is
+- current: none of those sources changed since its commit;
+- replot: only the sources of its tables' text and figures changed (`python -m experiments.replot FOLDER`);
+- stale: a source of its numbers changed (the files are listed), it ran on uncommitted code ("-dirty"), its
+  commit is not in this history, or a result whose trained runs it reads is stale.
+--check exits 1 when any is not current; --index writes ROOT/README.md, the index of every result (what it
+answers, the command, commit, seeds, wall time, state). ROOT defaults to docs/results.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import subprocess
+from pathlib import Path
+
+from experiments import catalog, common
+
+
+@dataclasses.dataclass
+class Result:
+    """One published result folder and its state at HEAD."""
+
+    folder: Path
+    experiment: catalog.Experiment | None
+    results: dict
+    state: str = "current"  # current | replot | stale
+    why: list = dataclasses.field(default_factory=list)
+
+    @property
+    def commit(self) -> str:
+        return str(self.results.get("commit", ""))
+
+
+def _git(*args) -> subprocess.CompletedProcess:
+    return subprocess.run(["git", *args], cwd=common.ROOT, capture_output=True, text=True)
+
+
+def changed_since(commit: str, paths) -> list[str] | None:
+    """Files under `paths` that differ between `commit` and HEAD (committed changes only), or None when the
+    commit is not in this repository's history."""
+    if _git("cat-file", "-e", f"{commit}^{{commit}}").returncode != 0:
+        return None
+    r = _git("diff", "--name-only", commit, "HEAD", "--", *paths)
+    return [line for line in r.stdout.splitlines() if line]
+
+
+def find(root) -> list[Path]:
+    """Every folder under root holding a results.json, sorted."""
+    return sorted(p.parent for p in Path(root).rglob("results.json"))
+
+
+def check(folder) -> Result:
+    """The state of one result folder at HEAD (without what it reuses: see check_all)."""
+    folder = Path(folder)
+    results = common.read_json(folder / "results.json") or {}
+    r = Result(folder, catalog.kind_of(results), results)
+    commit = r.commit
+    if r.experiment is None:
+        r.state, r.why = "stale", ["no experiment in experiments.catalog writes results like these"]
+        return r
+    if not commit or commit == "unknown":
+        r.state, r.why = "stale", ["no commit recorded"]
+        return r
+    if commit.endswith("-dirty"):
+        r.state, r.why = "stale", [f"ran on uncommitted changes to {commit[:7]}"]
+        return r
+    numbers = changed_since(commit, r.experiment.number_sources)
+    if numbers is None:
+        r.state, r.why = "stale", [f"commit {commit[:7]} is not in this history"]
+    elif numbers:
+        r.state, r.why = "stale", numbers
+    else:
+        figures = changed_since(commit, r.experiment.figures) if r.experiment.figures else []
+        if figures:
+            r.state, r.why = "replot", figures
+    return r
+
+
+def check_all(root) -> list[Result]:
+    """Every result under root; one that reads another experiment's runs (from the same folder tree) is stale
+    when that one is."""
+    rows = [check(f) for f in find(root)]
+    by_name = {(r.folder.parent, r.experiment.name): r for r in rows if r.experiment}
+    for r in rows:
+        if r.experiment and r.experiment.reuses and r.state != "stale":
+            source = by_name.get((r.folder.parent, r.experiment.reuses))
+            if source is not None and source.state == "stale":
+                r.state, r.why = "stale", [f"reads {source.folder.name}, which is stale"]
+    return rows
+
+
+def _why(r: Result, n: int = 4) -> str:
+    """The reasons, changed files grouped by folder ("ffjax/sim (12 files)"), the folders with most first."""
+    if not r.why or not r.why[0].count("/") and " " in r.why[0]:
+        return ", ".join(r.why)
+    groups: dict = {}
+    for f in r.why:
+        groups.setdefault(str(Path(f).parent) if "/" in f else f, []).append(f)
+    ranked = sorted(groups.items(), key=lambda kv: -len(kv[1]))
+    text = [k if len(v) == 1 and k == v[0] else f"{k} ({len(v)} file{'s' * (len(v) > 1)})" for k, v in ranked[:n]]
+    return ", ".join(text) + (f" (+{len(ranked) - n} folders)" if len(ranked) > n else "")
+
+
+def table(rows, root) -> str:
+    """Markdown: folder, experiment, preset, commit, state and why."""
+    return common.md_table(
+        ["result", "experiment", "preset", "commit", "state", "why"],
+        [[str(r.folder.relative_to(root)), r.experiment.name if r.experiment else "?",
+          r.results.get("preset", "-"), f"`{r.commit[:7]}`" if r.commit else "-", r.state, _why(r) or "-"]
+         for r in rows])
+
+
+def _seeds(results: dict) -> str:
+    seeds = results.get("seeds")
+    if isinstance(seeds, list):
+        return str(len(seeds))
+    if isinstance(seeds, int):
+        return str(seeds)
+    cfg = results.get("config") or {}
+    return str(cfg.get("seeds", "-"))
+
+
+def _wall(results: dict) -> str:
+    t = (results.get("timings") or {}).get("total_s") or results.get("wall_s")
+    return f"{t / 60:.0f} min" if isinstance(t, (int, float)) else "-"
+
+
+def index(rows, root, record: dict | None = None) -> str:
+    """The index page of a results tree: every result, what it answers, how it was made and whether it is
+    current. record: experiments.reproduce's reproduce.json for this tree (the run's commands and wall times)."""
+    record = record or {}
+    runs = record.get("experiments", {})
+    lines = ["# Published results", "",
+             "Generated (do not edit) by `python -m experiments.reproduce` or `python -m experiments.status ROOT "
+             "--index`: every result here, what it answers, the command that made it, the commit it ran, its seeds "
+             "and wall time, and its state when this page was written (`python -m experiments.status` says it for "
+             "today's HEAD).", ""]
+    if record:
+        total = sum(v["wall_s"] for v in runs.values())
+        lines += [f"Made by `python -m experiments.reproduce --preset {record['preset']}` at commit "
+                  f"`{record['commit'][:12]}`: {total / 60:.0f} min wall in all, load average "
+                  f"{record['load_start'][0]:.1f} at the start and {record['load_end'][0]:.1f} at the end.", ""]
+    body = []
+    for r in rows:
+        e = r.experiment
+        rel = r.folder.relative_to(root)
+        ran = runs.get(str(rel))
+        cmd = f"python -m {e.module} {' '.join(ran['argv'])}" if ran else f"python -m {e.module}" if e else "-"
+        wall = f"{ran['wall_s'] / 60:.1f} min" if ran else _wall(r.results)
+        body.append([f"[{rel}]({rel}/)", e.question if e else "-", f"`{cmd}`",
+                     f"`{r.commit[:7]}`" if r.commit else "-", _seeds(r.results), wall, r.state])
+    lines.append(common.md_table(["result", "answers", "command", "commit", "seeds", "wall", "state"], body))
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
+    ap.add_argument("root", nargs="?", default=str(common.ROOT / "docs" / "results"),
+                    help="a results tree (default: docs/results)")
+    ap.add_argument("--stale", action="store_true", help="list only the results that are not current")
+    ap.add_argument("--check", action="store_true", help="exit 1 when any result is not current")
+    ap.add_argument("--index", action="store_true", help="write ROOT/README.md, the index of every result")
+    args = ap.parse_args(argv)
+    root = Path(args.root)
+    if not root.is_dir():
+        ap.error(f"{root}: no such folder")
+    rows = check_all(root)
+    shown = [r for r in rows if r.state != "current"] if args.stale else rows
+    print(table(shown, root))
+    counts = {s: sum(r.state == s for r in rows) for s in ("current", "replot", "stale")}
+    print(f"\n{len(rows)} results: " + ", ".join(f"{n} {s}" for s, n in counts.items()))
+    if args.index:
+        common.write_text(root / "README.md", index(rows, root, common.read_json(root / "reproduce.json")))
+        print(f"wrote {root / 'README.md'}")
+    return 1 if args.check and counts["current"] < len(rows) else 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    from ffjax import cli
+
+    sys.exit(cli.run(main))

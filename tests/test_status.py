@@ -1,0 +1,110 @@
+"""experiments.catalog knows every published result; experiments.status says which are current at HEAD and why;
+experiments.reproduce runs the pipeline's experiments with the command lines the catalog gives."""
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from experiments import catalog, common, reproduce, status
+
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+HEAD = subprocess.run(["git", "rev-parse", "HEAD"], cwd=common.ROOT, capture_output=True, text=True).stdout.strip()
+
+
+def _result(folder: Path, **fields) -> Path:
+    folder.mkdir(parents=True)
+    (folder / "results.json").write_text(json.dumps(fields))
+    return folder
+
+
+def test_every_published_result_has_its_experiment():
+    unknown = [str(f.relative_to(RESULTS)) for f in status.find(RESULTS)
+               if catalog.kind_of(common.read_json(f / "results.json")) is None]
+    assert not unknown
+
+
+def test_the_pipeline_runs_an_experiment_after_the_one_it_reuses():
+    order = [e.name for e in catalog.pipeline()]
+    assert len(order) == len(set(order))
+    for i, e in enumerate(catalog.pipeline()):
+        if e.reuses:
+            assert e.reuses in order[:i], e.name
+    assert order[0] == "ablation"
+
+
+def test_each_pipeline_command_parses(tmp_path, capsys):
+    """The flags the catalog gives every experiment are ones its parser takes (--help after them exits 0)."""
+    import importlib
+
+    for e in catalog.pipeline():
+        module = importlib.import_module(e.module)
+        main = getattr(module, "main", None) or importlib.import_module(f"{e.module}.suite").main
+        with pytest.raises(SystemExit) as ex:
+            main([*reproduce.argv_for(e, "smoke", tmp_path, quiet=True), "--help"])
+        assert ex.value.code == 0, e.name
+
+
+def test_a_result_of_head_is_current_and_one_of_unknown_code_is_stale(tmp_path):
+    if not HEAD:
+        pytest.skip("not a git checkout")
+    _result(tmp_path / "smoke" / "pareto", commit=HEAD, cells=[], fronts=[])
+    _result(tmp_path / "smoke" / "sweep", commit=HEAD + "-dirty", per_beta={})
+    _result(tmp_path / "smoke" / "stab", commit="0" * 40, factors={}, seed_spread={})
+    _result(tmp_path / "smoke" / "mystery", commit=HEAD, something=1)
+    rows = {r.folder.name: r for r in status.check_all(tmp_path)}
+    assert rows["pareto"].state == "current"
+    assert rows["sweep"].state == "stale" and "uncommitted" in rows["sweep"].why[0]
+    assert rows["stab"].state == "stale" and "not in this history" in rows["stab"].why[0]
+    assert rows["mystery"].state == "stale" and rows["mystery"].experiment is None
+
+
+def test_a_changed_source_makes_a_result_stale_and_its_readers_too(tmp_path, monkeypatch):
+    """Numbers sources changed: stale, the files named; figure sources only: replot; an experiment reading a
+    stale ablation's runs is stale as well."""
+    changes = {("ffjax",): ["ffjax/sim/optics.py", "ffjax/sim/press.py", "ffjax/models/vit.py"]}
+
+    def changed(commit, paths):
+        if tuple(paths)[:1] == ("ffjax",) and "experiments/sweep_loss.py" not in paths and "abl" in commit:
+            return changes[("ffjax",)]
+        if "experiments/tables.py" in paths and "sw" in commit:
+            return ["experiments/tables.py"]
+        return []
+
+    monkeypatch.setattr(status, "changed_since", changed)
+    _result(tmp_path / "quick" / "ablation", commit="abl", table1={})
+    _result(tmp_path / "quick" / "stability", commit="st", factors={}, seed_spread={})
+    _result(tmp_path / "other" / "sweep_loss", commit="sw", per_beta={})
+    rows = {str(r.folder.relative_to(tmp_path)): r for r in status.check_all(tmp_path)}
+    assert rows["quick/ablation"].state == "stale"
+    assert status._why(rows["quick/ablation"]) == "ffjax/sim (2 files), ffjax/models (1 file)"
+    assert rows["quick/stability"].state == "stale" and "ablation" in rows["quick/stability"].why[0]
+    assert rows["other/sweep_loss"].state == "replot"  # its ablation is in another tree: not read
+
+
+def test_status_cli_lists_checks_and_writes_the_index(tmp_path, capsys):
+    if not HEAD:
+        pytest.skip("not a git checkout")
+    _result(tmp_path / "pareto", commit=HEAD, cells=[], fronts=[], preset="smoke")
+    assert status.main([str(tmp_path), "--check", "--index"]) == 0
+    out = capsys.readouterr().out
+    assert "1 results: 1 current" in out
+    page = (tmp_path / "README.md").read_text()
+    assert "[pareto](pareto/)" in page and "Speed against accuracy" in page and HEAD[:7] in page
+    _result(tmp_path / "old", commit="0" * 40, per_beta={})
+    assert status.main([str(tmp_path), "--check", "--stale"]) == 1
+    assert "pareto" not in capsys.readouterr().out.split("\n\n")[0]
+
+
+def test_publish_leaves_the_trained_runs_behind(tmp_path):
+    src = tmp_path / "work" / "ablation"
+    (src / "runs" / "dino_rd" / "seed0").mkdir(parents=True)
+    (src / "runs" / "dino_rd" / "seed0" / "model.json").write_text("{}")
+    (src / "results.json").write_text("{}")
+    (src / "table1.md").write_text("t")
+    dst = tmp_path / "pub" / "ablation"
+    dst.mkdir(parents=True)
+    (dst / "stale.md").write_text("old")
+    reproduce.publish(src, dst)
+    assert sorted(p.name for p in dst.iterdir()) == ["results.json", "table1.md"]
