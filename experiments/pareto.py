@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from experiments import common, kernel, tables
+from experiments import common, kernel, style, tables
 from ffjax import registry
 
 # name: (backbone kind, overrides of cfg["model"][kind]); {} = the preset's own model. All patch 8.
@@ -406,18 +406,14 @@ def plot(results: dict, path: Path) -> Path:
 
     rows = results["cells"]
     methods = sorted({r["method"] for r in rows}, key=lambda m: (m not in registry.PAPER_SET, m))
-    colours = {m: plt.get_cmap("tab10")(i % 10) for i, m in enumerate(methods)}
+    colours = {m: style.colour(m) for m in methods}  # the method's colour in every figure; the marker is the size
     markers = dict(zip(results["sizes"], "osD^vP*X"))
     fig, axes = plt.subplots(2, 2, figsize=(12, 9))
     for ax, (_, y, x, x_min, title) in zip(axes.ravel(), PANELS):
         xy = _xy(rows, y, x)
         on_front = set(pareto_front(xy, (x_min, True)))
-        for i, (r, (a, b)) in enumerate(zip(rows, xy)):
+        for r, (a, b) in zip(rows, xy):
             ax.scatter(a, b, color=colours[r["method"]], marker=markers.get(r["size"], "o"), s=45, zorder=3)
-            if i in on_front:  # only the front is labelled: all 20 labels collided into a blob; colour and marker
-                # (legend) name the others
-                ax.annotate(f"{tables._name(r['method'])} {r['size']}", (a, b), textcoords="offset points",
-                            xytext=(5, 4), fontsize=7)
         front = sorted((xy[i] for i in on_front), key=lambda p: p[0])
         if front:
             fx, fy = zip(*front)
@@ -431,9 +427,14 @@ def plot(results: dict, path: Path) -> Path:
             ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: _num(v)))
             ax.xaxis.set_minor_formatter(NullFormatter())
         ax.margins(x=0.12, y=0.08)  # room for the labels
+        # only the front is labelled (all 20 labels collided into a blob; colour and marker name the others),
+        # each label placed where it misses the others
+        front_i = sorted(on_front)
+        common.place_labels(ax, [xy[i][0] for i in front_i], [xy[i][1] for i in front_i],
+                            [f"{style.name(rows[i]['method'])} {rows[i]['size']}" for i in front_i])
         ax.set(title=title, xlabel=AXIS_LABELS[x], ylabel=AXIS_LABELS[y])
         ax.grid(alpha=0.3, which="both")
-    handles = [plt.Line2D([], [], color=colours[m], marker="o", ls="", label=tables._name(m)) for m in methods]
+    handles = [plt.Line2D([], [], color=colours[m], marker="o", ls="", label=style.name(m)) for m in methods]
     handles += [plt.Line2D([], [], color="grey", marker=markers.get(s, "o"), ls="", label=s) for s in results["sizes"]]
     handles.append(plt.Line2D([], [], color="k", marker="o", mfc="none", ls="--", label="Pareto front"))
     fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 6), fontsize=8)

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments import common, kernel
+from experiments import common, kernel, style
 from experiments import paper_numbers as P
 from experiments.tables import save_png
 from ffjax import registry
@@ -377,8 +377,7 @@ def lowest_at(entry: dict, li: int) -> str | None:
     return min(errs, key=errs.get) if errs else None
 
 
-def _name(m: str) -> str:
-    return registry.get(m).paper_name if m in registry.names() else m
+_name = style.name
 
 
 # Why a factor hurts (a mechanism in the simulator) and what might make one method more fragile: stated
@@ -510,14 +509,15 @@ def write_all(results: dict, out: Path) -> None:
     common.write_json(out / "results.json", results)
 
 
-_MARKERS, _LINES = "osD^v<>", ("-", "--", ":", "-.")
+_LINES = ("-", "--", ":", "-.")
 
 
 def _curve(ax, e: dict, m: str, k: int, color, label: str, multi_seed: bool) -> None:
     v = e["methods"][m]
     x = e["levels"]
-    # a marker and line style per method: equal curves (DINO_F R and DINO_F RD) stay visible on each other
-    ax.errorbar(x, v["nl1"], yerr=v["std"] if multi_seed else None, fmt=_MARKERS[k % len(_MARKERS)],
+    # the method's own marker, and a line style per position: equal curves (DINO_F R and DINO_F RD) stay
+    # visible on each other
+    ax.errorbar(x, v["nl1"], yerr=v["std"] if multi_seed else None, fmt=style.marker(m),
                 ls=_LINES[k % len(_LINES)], color=color, capsize=2 if multi_seed else 0, ms=5 - 0.5 * (k % 3),
                 mfc="none" if k % 2 else color, label=label)
     ax.axhline(2 * v["nl1"][e["ref"]], color=color, ls=":", lw=0.8)
@@ -537,14 +537,14 @@ def _labels(e: dict) -> dict:
 
 
 def plot(results: dict, out: Path) -> list[Path]:
-    """stability_<factor>.png per factor, stability.png (all factors) and seeds.png, each stamped with preset,
-    seeds and commit; error bars only over >= 2 seeds; legends outside the axes."""
+    """stability_<factor>.png per factor, stability.png (all factors) and seeds.png (with >= 2 seeds), each
+    stamped with preset, seeds and commit; error bars only over >= 2 seeds; legends outside the axes."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    colors = dict(zip(results["methods"], plt.cm.tab10(np.arange(len(results["methods"])))))
+    colors = {m: style.colour(m) for m in results["methods"]}
     paths = []
     fz_max = float(results["config"]["data"]["fz_max"])
     multi_seed = len(results["seeds"]) >= 2
@@ -584,6 +584,9 @@ def plot(results: dict, out: Path) -> list[Path]:
     stamp(fig)
     paths.append(save_png(fig, out / "stability.png"))
 
+    if not multi_seed:  # one dot per method says nothing about a spread
+        (out / "seeds.png").unlink(missing_ok=True)
+        return paths
     ss = results["seed_spread"]
     fig, ax = plt.subplots(figsize=(7.5, 3.8))
     keys = ("unseen_objects", "unseen_sensors", "digit")
@@ -591,7 +594,7 @@ def plot(results: dict, out: Path) -> list[Path]:
         for j, k in enumerate(keys):
             vals = v[k]["values"]
             ax.scatter([j + 0.12 * (i - len(ss) / 2)] * len(vals), vals, color=colors.get(m), s=14,
-                       marker=_MARKERS[i % len(_MARKERS)], label=_name(m) if j == 0 else None)
+                       marker=style.marker(m), label=_name(m) if j == 0 else None)
     ax.set_xticks(range(len(keys)))
     ax.set_xticklabels(["unseen objects (Table I mean)", "Table II mean", "DIGIT"])
     ax.set_ylabel("normalized L1 error (%)")

@@ -7,9 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments import common
+from experiments import common, style
 from experiments import paper_numbers as P
-from ffjax import registry
 
 
 def _cell(runs: list[dict]) -> dict:
@@ -48,11 +47,7 @@ def _m(x) -> float:
     return float(x["mean"]) if isinstance(x, dict) else float("nan")
 
 
-def _name(method: str) -> str:
-    try:
-        return registry.get(method).paper_name
-    except KeyError:
-        return method
+_name = style.name
 
 
 TIE_FLOOR = 0.05  # points: below the tables' 0.1 resolution a difference is not one, whatever the seeds
@@ -245,7 +240,6 @@ def plot_all(results: dict, out: Path) -> list[Path]:
 
     paths = []
     methods = list(results["table1"])
-    colors = plt.cm.tab10(np.arange(len(methods)))
     multi_seed = len(results.get("seeds", [])) >= 2
     hatches = _hatches(results["table1"])
 
@@ -261,20 +255,21 @@ def plot_all(results: dict, out: Path) -> list[Path]:
             vals = [getter(m, g) for g in groups]
             err = [v["std"] if v else 0 for v in vals] if multi_seed else None
             ax.bar(x + i * width, [_m(v) for v in vals], width, yerr=err, capsize=2 if multi_seed else 0,
-                   label=_name(m) + (" (= " + hatches[m][1] + ")" if hatches[m][1] else ""), color=colors[i],
+                   label=_name(m) + (" (= " + hatches[m][1] + ")" if hatches[m][1] else ""), color=style.colour(m),
                    hatch=hatches[m][0], edgecolor="white" if hatches[m][0] else None)
         if paper:
             for i, m in enumerate(methods):
                 if m in paper:
-                    ax.scatter(x + i * width, paper[m][: len(groups)], marker="_", s=120, color="k", zorder=3,
-                               label="paper" if i == min(j for j, mm in enumerate(methods) if mm in paper) else None)
+                    ax.scatter(x + i * width, paper[m][: len(groups)], **style.PAPER,
+                               label=style.PAPER_LABEL if i == min(j for j, mm in enumerate(methods) if mm in paper)
+                               else None)
         ax.set_xticks(x + 0.4 - width / 2)
         ax.set_ylabel("normalized L1 error (%)")
 
     seeds_txt = f"mean ± std over {len(results['seeds'])} seeds" if multi_seed else "1 seed, no error bars"
 
-    def ticks_txt(paper, what):  # name the paper's ticks only where some are drawn (not for e.g. a scratch run)
-        return f"; black ticks: {what}" if any(m in paper for m in methods) else ""
+    def ticks_txt(paper, what):  # name the paper's stars only where some are drawn (not for e.g. a scratch run)
+        return f"; stars: {what}" if any(m in paper for m in methods) else ""
 
     t1 = results["table1"]
     objs = [o for o in P.OBJECTS if o in t1[methods[0]]] + ["mean"]
@@ -300,11 +295,11 @@ def plot_all(results: dict, out: Path) -> list[Path]:
         for dx, when, color in ((-0.2, "before", "0.75"), (0.2, "after", "tab:blue")):
             cells = [t3[m][t][when] for m in methods]
             ax.bar(x + dx, [_m(c) for c in cells], 0.4, label=f"{when} calibration", color=color,
-                   yerr=[c["std"] for c in cells] if multi_seed else None, capsize=2)
+                   yerr=[c["std"] for c in cells] if multi_seed else None, capsize=2 if multi_seed else 0)
         paper_x = [i for i, m in enumerate(methods) if m in P.TABLE3]
-        if paper_x:  # no legend entry for ticks that are not drawn
+        if paper_x:  # no legend entry for stars that are not drawn
             ax.scatter([i + 0.2 for i in paper_x], [P.TABLE3[methods[i]][targets.index(t)] for i in paper_x],
-                       marker="_", s=120, color="k", zorder=3, label="paper (after)")
+                       **style.PAPER, label=style.PAPER_LABEL + ", after")
         ax.set_xticks(x)
         ax.set_xticklabels([_name(m) for m in methods], rotation=30, ha="right", fontsize=7)
         ax.set_title(f"{t} ({t3[methods[0]][t]['layers']})")
