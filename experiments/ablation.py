@@ -23,7 +23,7 @@ from ffjax import registry
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "~30 min",
+    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "~35 min",
                                                                            "full": "52 min (3 seeds, before issue 13)"})
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
                     help=f"registry names (default: the paper set {', '.join(registry.PAPER_SET)})")

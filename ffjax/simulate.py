@@ -20,7 +20,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m ffjax.simulate", description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="quick", choices=configs.PRESETS,
                     help="dataset size (default: quick). Measured on a 2-core CPU: smoke seconds; quick 11,300 "
-                         "presses in 4-6 min")
+                         "presses in ~6 min; paper ~235K at 240x320, meant for a GPU")
     ap.add_argument("--out", required=True)
     ap.add_argument("--force", action="store_true", help="delete a dataset made with another config")
     ap.add_argument("--workers", type=int, default=None, help="processes (default: CPU count, max 8; one on a GPU)")
