@@ -36,6 +36,7 @@ class Experiment:
     numbers: tuple = ()
     figures: tuple = ()
     in_pipeline: bool = True
+    takes_common_flags: bool = True  # --quiet and --data, as experiments.common's parser gives them
 
     @property
     def number_sources(self) -> tuple:
@@ -147,11 +148,11 @@ EXPERIMENTS = (
     Experiment("bench-sim", "experiments.bench",
                "The simulator's speed: batched solves against the numpy reference, their agreement, a dataset's time",
                lambda r: r.get("experiment") == "bench" and "sim_speed" in r, _replot_bench,
-               args=_bench("sim"), numbers=("experiments/bench",)),
+               args=_bench("sim"), numbers=("experiments/bench",), takes_common_flags=False),
     Experiment("bench", "experiments.bench",
                "ffjax against PyTorch: train and inference speed, scaling, the loop against its step",
                lambda r: r.get("experiment") == "bench", _replot_bench, args=_bench(None),
-               numbers=("experiments/bench",), in_pipeline=False),
+               numbers=("experiments/bench",), in_pipeline=False, takes_common_flags=False),
     Experiment("contact_probe", "experiments.diagnostics.contact_probe",
                "Where a contact's edge is read: the layer's contact against the rendered frame",
                _has("edge_mm", "per_shape"), _replot_probe("contact_probe"),

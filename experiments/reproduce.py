@@ -1,6 +1,7 @@
 """Bring every published result of a preset up to date from the current commit, in one command.
 
     python -m experiments.reproduce --preset {smoke,quick,full} [--only NAME ...] [--work DIR] [--publish DIR]
+                                    [--no-publish] [--data DIR] [--quiet]
 
 Runs each experiment of experiments.catalog's pipeline in order (the ablation with 3 seeds, the loss sweep, the
 speed/accuracy chart, stability, downstream, the simulator's benchmark), each into WORK/<name> (default WORK:
@@ -28,9 +29,10 @@ from experiments import catalog, common, status
 _NOT_PUBLISHED = ("runs", "checkpoints", "cache", "frames")
 
 
-def argv_for(exp: catalog.Experiment, preset: str, work: Path, quiet: bool) -> list[str]:
+def argv_for(exp: catalog.Experiment, preset: str, work: Path, quiet: bool, data: str | None = None) -> list[str]:
     """The command line of one experiment in the pipeline."""
-    return [*exp.args(preset, work), "--out", str(work / exp.name), *(["--quiet"] if quiet else [])]
+    extra = [*(["--quiet"] if quiet else []), *(["--data", str(data)] if data else [])]
+    return [*exp.args(preset, work), "--out", str(work / exp.name), *(extra if exp.takes_common_flags else [])]
 
 
 def run_one(exp: catalog.Experiment, argv: list[str]) -> float:
@@ -62,6 +64,7 @@ def main(argv=None) -> dict:
                                                   "(default: results/reproduce-<preset>)")
     ap.add_argument("--publish", default=None, help="where the results are published (default: docs/results/<preset>)")
     ap.add_argument("--no-publish", action="store_true", help="run only; leave the published results as they are")
+    ap.add_argument("--data", default=None, help="dataset folder (default: data/<preset>, made if missing)")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
     chosen = catalog.pipeline()
@@ -84,9 +87,10 @@ def main(argv=None) -> dict:
     record = {"preset": args.preset, "commit": commit, "load_start": list(os.getloadavg()), "experiments": {}}
     t0 = time.perf_counter()
     for exp in chosen:
-        line = argv_for(exp, args.preset, work, args.quiet)
+        line = argv_for(exp, args.preset, work, args.quiet, args.data and Path(args.data).absolute())
         print(f"[reproduce] {exp.name}: python -m {exp.module} {' '.join(line)}", file=sys.stderr, flush=True)
-        record["experiments"][exp.name] = {"argv": line, "wall_s": run_one(exp, line),
+        fresh = not (work / exp.name).exists()  # else cached stages may be reused: its wall time is not its cost
+        record["experiments"][exp.name] = {"argv": line, "wall_s": run_one(exp, line), "fresh": fresh,
                                            "load_after": list(os.getloadavg())}
     record["wall_s"] = round(time.perf_counter() - t0, 1)
     record["load_end"] = list(os.getloadavg())

@@ -151,10 +151,14 @@ def index(rows, root, record: dict | None = None) -> str:
         e = r.experiment
         rel = r.folder.relative_to(root)
         ran = runs.get(str(rel))
-        cmd = f"python -m {e.module} {' '.join(ran['argv'])}" if ran else f"python -m {e.module}" if e else "-"
-        wall = f"{ran['wall_s'] / 60:.1f} min" if ran else _wall(r.results)
-        body.append([f"[{rel}]({rel}/)", e.question if e else "-", f"`{cmd}`",
-                     f"`{r.commit[:7]}`" if r.commit else "-", _seeds(r.results), wall, r.state])
+        if ran:  # the one command that re-makes it (its experiment's own command line is in reproduce.json)
+            cmd = f"python -m experiments.reproduce --preset {record['preset']} --only {rel}"
+            wall = f"{ran['wall_s'] / 60:.1f} min" + ("" if ran.get("fresh", True) else " (cached stages reused)")
+        else:
+            cmd, wall = (f"python -m {e.module}" if e else "-"), _wall(r.results)
+        commit = f"`{r.commit[:7]}`" + (" (uncommitted changes)" if r.commit.endswith("-dirty") else "")
+        body.append([f"[{rel}]({rel}/)", e.question if e else "-", f"`{cmd}`", commit if r.commit else "-",
+                     _seeds(r.results), wall, r.state + (f": {_why(r)}" if r.state != "current" else "")])
     lines.append(common.md_table(["result", "answers", "command", "commit", "seeds", "wall", "state"], body))
     return "\n".join(lines) + "\n"
 
