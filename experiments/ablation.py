@@ -71,7 +71,8 @@ def run(cfg: dict, methods, n_seeds: int, out, data_dir=None, force: bool = Fals
     timings.update(train_s=train_s, eval_s=eval_s, total_s=round(time.perf_counter() - t0, 1))
 
     results = tables.aggregate(per_run)
-    results.update(preset=cfg["preset"], commit=common.git_commit(), seeds=seeds, methods=methods,
+    results.update(preset=cfg["preset"], commit=common.git_commit(), machine=common.machine(), seeds=seeds,
+                   methods=methods,
                    timings=timings, checkpoints=checkpoints, data=str(data_root), config=cfg,
                    metric="normalized L1 %: mean |error| / (max - min of the training labels) per axis, "
                           "averaged over Fx, Fy, Fz; mae_n = per-axis MAE in newtons")

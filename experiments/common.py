@@ -7,6 +7,8 @@ import argparse
 import functools
 import hashlib
 import json
+import os
+import platform
 import shutil
 import subprocess
 import sys
@@ -94,6 +96,35 @@ def git_commit() -> str:
         return head + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
+
+
+def machine() -> dict:
+    """What a timed result ran on: the CPU by name with its family and model (two VMs both called "AMD EPYC" can
+    be a Zen 1 and a Zen 3, whose matrix units differ 2x), its SIMD, cores, memory, python, jax, flax, devices."""
+    import flax
+    import jax
+
+    info = {"cpu_model": "unknown", "cores": os.cpu_count(), "python": platform.python_version(),
+            "jax": jax.__version__, "flax": flax.__version__, "devices": [str(d) for d in jax.devices()],
+            "platform": platform.platform()}
+    try:
+        cpu = {}
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() in ("model name", "cpu family", "model", "flags") and key.strip() not in cpu:
+                cpu[key.strip()] = value.strip()
+            if line.strip() == "":
+                break  # the first processor's block
+        name = cpu.get("model name", "unknown")
+        if "cpu family" in cpu:
+            name += f" (family {cpu['cpu family']}, model {cpu.get('model', '?')})"
+        info["cpu_model"] = name
+        info["simd"] = sorted(f for f in cpu.get("flags", "").split()
+                              if f.startswith(("avx512f", "avx512_bf16", "amx", "avx2")))
+        info["mem_gib"] = round(int(Path("/proc/meminfo").read_text().split("\n")[0].split()[1]) / 2**20, 1)
+    except (OSError, ValueError, IndexError):
+        pass
+    return info
 
 
 def fingerprint(*parts) -> str:

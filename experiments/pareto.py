@@ -20,7 +20,6 @@ from __future__ import annotations
 import copy
 import functools
 import os
-import platform
 import statistics
 import sys
 import time
@@ -169,19 +168,6 @@ def _steal(before: list[int], after: list[int]) -> dict:
     return {"steal": round(d[7] / total, 4) if len(d) > 7 else 0.0, "busy": round(1 - (d[3] + d[4]) / total, 4)}
 
 
-def machine() -> dict:
-    import jax
-
-    info = {"cpu_model": "unknown", "cores": os.cpu_count(), "jax": jax.__version__,
-            "devices": [str(d) for d in jax.devices()], "platform": platform.platform()}
-    try:
-        info["cpu_model"] = next(ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
-                                 if ln.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return info
-
-
 class Timers:
     """The jitted programs of one cell: force-only inference at batch 1 and 32, and the train step."""
 
@@ -320,7 +306,7 @@ def run(cfg: dict, methods, sizes, n_seeds: int, out, data_dir=None, full_grid: 
                "grid_rule": "lean: every method at the preset's own size, only dino_rd (ViT) / resnet_rd (ResNet) "
                             "at the other sizes; full: every method at every size of its backbone kind",
                "cells": rows, "fronts": fronts, "reused_ablation_runs": reused,
-               "timings": timings, "machine": {**machine(), **env}, "repeats": REPEATS[cfg["preset"]],
+               "timings": timings, "machine": {**common.machine(), **env}, "repeats": REPEATS[cfg["preset"]],
                "data": str(data_root), "config": cfg, "overrides": overrides(cfg),
                "notes": "error = normalized L1 % (Table I: mean over the 10 unseen objects; Table II: mean over "
                         "the 9 GelSight sensor/gel pairs), mean over seeds. Latency = force-only jitted "

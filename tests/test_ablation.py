@@ -36,7 +36,8 @@ def test_writes_tables_plots_and_schema(smoke_run):
                  "table1.png", "table2.png", "table3.png"):
         assert (out / name).stat().st_size > 0, name
     saved = json.loads((out / "results.json").read_text())
-    for key in ("preset", "commit", "seeds", "timings", "table1", "table2", "table3", "checkpoints", "findings"):
+    for key in ("preset", "commit", "machine", "seeds", "timings", "table1", "table2", "table3", "checkpoints",
+                "findings"):
         assert key in saved
     assert saved["preset"] == "smoke" and saved["seeds"] == [0, 1]
     t1 = saved["table1"]["dino_rd"]

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -22,6 +21,7 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
+from experiments import common
 from experiments.bench import jax_step as bj
 from experiments.common import ROOT, git_commit, write_json, write_text
 
@@ -86,30 +86,6 @@ def steal_between(before: list[int], after: list[int]) -> dict:
     d = [a - b for a, b in zip(after, before)]
     total = max(sum(d[:8]), 1)
     return {"steal": d[7] / total if len(d) > 7 else 0.0, "busy": 1 - (d[3] + d[4]) / total}
-
-
-def machine() -> dict:
-    import jax
-
-    info = {"cpu_model": "unknown", "cores": os.cpu_count(), "python": platform.python_version(),
-            "jax": jax.__version__, "devices": [str(d) for d in jax.devices()], "platform": platform.platform()}
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-        for line in text.splitlines():
-            if line.startswith("model name"):
-                info["cpu_model"] = line.split(":", 1)[1].strip()
-            if line.startswith("flags"):
-                fl = set(line.split(":", 1)[1].split())
-                info["simd"] = sorted(f for f in fl if f.startswith(("avx512f", "avx512_bf16", "amx", "avx2")))
-                break
-        mem = Path("/proc/meminfo").read_text().split("\n")[0].split()[1]
-        info["mem_gib"] = round(int(mem) / 2**20, 1)
-    except OSError:
-        pass
-    import flax
-
-    info["flax"] = flax.__version__
-    return info
 
 
 class Section:
@@ -361,7 +337,7 @@ def run_only(part: str, mode: str | dict, out: str | Path | None = None, log=pri
     out = Path(out or ROOT / "results" / f"bench-{part}-{mode}").absolute()
     out.mkdir(parents=True, exist_ok=True)
     res: dict = {"experiment": "bench", "mode": f"{mode}, {part} only", "commit": git_commit(),
-                 "date_utc": datetime.now(UTC).isoformat(timespec="seconds"), "machine": machine(),
+                 "date_utc": datetime.now(UTC).isoformat(timespec="seconds"), "machine": common.machine(),
                  "load_start": list(os.getloadavg()), "data": {}}
     case = plan["cases"]["quick_vit"]
     with Section(res, part, log), tempfile.TemporaryDirectory() as tmp:
@@ -437,7 +413,7 @@ def run(mode: str | dict = "quick", out: str | Path | None = None, torch_python:
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     res: dict = {"experiment": "bench", "mode": mode, "commit": git_commit(),
-                 "date_utc": datetime.now(UTC).isoformat(timespec="seconds"), "machine": machine(),
+                 "date_utc": datetime.now(UTC).isoformat(timespec="seconds"), "machine": common.machine(),
                  "load_start": list(os.getloadavg()), "_out": str(out)}
     torch = TorchSide(torch_python, "cuda" if on_gpu else "cpu")
     res["torch"] = torch.info or {"skipped": torch.why}
