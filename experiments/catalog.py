@@ -38,6 +38,13 @@ class Experiment:
     in_pipeline: bool = True
     takes_common_flags: bool = True  # --quiet and --data, as experiments.common's parser gives them
 
+    def main(self) -> Callable:
+        """Its command's main(argv): the module's own, or its package's suite's (experiments.bench)."""
+        import importlib
+
+        module = importlib.import_module(self.module)
+        return getattr(module, "main", None) or importlib.import_module(f"{self.module}.suite").main
+
     @property
     def number_sources(self) -> tuple:
         """Every source its numbers depend on: the library's and its own."""

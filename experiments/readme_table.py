@@ -35,8 +35,7 @@ def table(main: dict, more_seeds: dict | None = None) -> str:
     def with_seeds(key: str, m: str) -> str:
         cell = _f(main[key][m]["mean"]["mean"])
         if m in extra.get(key, {}) and len(extra.get("seeds", [])) >= 2:
-            s = extra[key][m]["mean"]
-            cell += f" ({len(extra['seeds'])} seeds: {_f(s['mean'])} ± {_f(s['std'])})"
+            cell += f" ({len(extra['seeds'])} seeds: {common.fmt(extra[key][m]['mean'])})"
         return cell
 
     def paper(numbers: dict, pick) -> list:

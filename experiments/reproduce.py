@@ -15,7 +15,6 @@ wall time and the load) and the index page (experiments.status --index).
 from __future__ import annotations
 
 import argparse
-import importlib
 import os
 import shutil
 import sys
@@ -37,8 +36,7 @@ def argv_for(exp: catalog.Experiment, preset: str, work: Path, quiet: bool, data
 
 def run_one(exp: catalog.Experiment, argv: list[str]) -> float:
     """Run an experiment's main(argv) in this process; its wall seconds."""
-    module = importlib.import_module(exp.module)
-    main = getattr(module, "main", None) or importlib.import_module(f"{exp.module}.suite").main
+    main = exp.main()
     t0 = time.perf_counter()
     main(argv)
     return round(time.perf_counter() - t0, 1)

@@ -97,7 +97,7 @@ def check_all(root) -> list[Result]:
 
 def _why(r: Result, n: int = 4) -> str:
     """The reasons, changed files grouped by folder ("ffjax/sim (12 files)"), the folders with most first."""
-    if not r.why or not r.why[0].count("/") and " " in r.why[0]:
+    if not r.why or " " in r.why[0]:  # a sentence, not changed files
         return ", ".join(r.why)
     groups: dict = {}
     for f in r.why:

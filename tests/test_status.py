@@ -41,7 +41,6 @@ class _Parsed(Exception):
 def test_each_pipeline_command_parses(tmp_path, monkeypatch):
     """The flags the catalog gives every experiment are ones its parser takes (stopped right after parsing)."""
     import argparse
-    import importlib
 
     def parse_args(self, args=None, namespace=None):
         _, unknown = self.parse_known_args(args, namespace)
@@ -50,10 +49,8 @@ def test_each_pipeline_command_parses(tmp_path, monkeypatch):
 
     monkeypatch.setattr(argparse.ArgumentParser, "parse_args", parse_args)
     for e in catalog.pipeline():
-        module = importlib.import_module(e.module)
-        main = getattr(module, "main", None) or importlib.import_module(f"{e.module}.suite").main
         with pytest.raises(_Parsed):
-            main(reproduce.argv_for(e, "smoke", tmp_path, quiet=True, data=tmp_path / "data"))
+            e.main()(reproduce.argv_for(e, "smoke", tmp_path, quiet=True, data=tmp_path / "data"))
 
 
 def test_a_result_of_head_is_current_and_one_of_unknown_code_is_stale(tmp_path):

@@ -78,19 +78,17 @@ def agreement(size, per_shape: int, sensors=None) -> dict:
         args = ([sim.get_shape(s) for s in p["shape"]], sensor, p["forces"], p["x_mm"], p["y_mm"], p["yaw_deg"],
                 p["tilt_deg"], [int(v) for v in p["seeds"]], tuple(size))
         new, ref = sim.press_many(*args), sim.press_many(*args, reference=True)
-        both = [(a, b) for a, b in zip(new, ref) if not isinstance(a, ValueError) and not isinstance(b, ValueError)]
+        ok = [i for i, (a, b) in enumerate(zip(new, ref))
+              if not isinstance(a, ValueError) and not isinstance(b, ValueError)]
+        both = [(new[i], ref[i]) for i in ok]
         depth = np.array([np.abs(a.depth - b.depth).max() for a, b in both]) * 1000
         # presses over 1 um again, the reference converged 100x further: is the difference the solver tolerance?
-        ok = [i for i, (a, b) in enumerate(zip(new, ref)) if not isinstance(a, ValueError)
-              and not isinstance(b, ValueError)]
         far = [ok[i] for i in np.flatnonzero(depth > 1)]
         picked = [v if v is sensor else [v[i] for i in far] for v in args[:8]]
         with mechanics.reference_tolerance(1e-8, 1e-6):
             tight = sim.press_many(*picked, args[8], reference=True) if far else []
-        to_tight = {"batched": max((float(np.abs(new[i].depth - t.depth).max()) * 1000 for i, t in zip(far, tight)),
-                                   default=0.0),
-                    "reference": max((float(np.abs(ref[i].depth - t.depth).max()) * 1000 for i, t in zip(far, tight)),
-                                     default=0.0)}
+        to_tight = {name: max((float(np.abs(path[i].depth - t.depth).max()) * 1000 for i, t in zip(far, tight)),
+                              default=0.0) for name, path in (("batched", new), ("reference", ref))}
         image = np.stack([np.abs(a.image.astype(np.int16) - b.image) for a, b in both])
         force = max(float(np.abs(a.force - b.force).max() / np.abs(b.force).max()) for a, b in both)
         out[key] = {"presses": len(both), "refused_by_one": sum(isinstance(a, ValueError) != isinstance(b, ValueError)
