@@ -55,6 +55,17 @@ def seeds(cfg: dict, n: int) -> list[int]:
     return [int(cfg["seed"]) + k for k in range(n)]
 
 
+def seeds_for(cfg: dict, spec, n: int, data_root: Path, reuse_from=None) -> list[int]:
+    """A cell's n seeds, then every further seed reuse_from (an ablation folder) finished with the same training
+    key: its extra seeds cost nothing and narrow the cell's error bar."""
+    own = seeds(cfg, n)
+    if reuse_from is None:
+        return own
+    found = sorted(int(p.name[4:]) for p in (Path(reuse_from) / "runs" / spec.name).glob("seed*")
+                   if p.name[4:].isdigit())
+    return own + [s for s in found if s not in own and reusable(reuse_from, cfg, spec, s, data_root)]
+
+
 def train_key(cfg: dict, spec, seed: int, data_root: Path) -> str:
     """The training stage's key: what decides the trained weights (not paths, not progress bars)."""
     manifest = common.read_json(Path(data_root) / "manifest.json") or {}
