@@ -105,7 +105,11 @@ def _has(*keys) -> Callable[[dict], bool]:
     return lambda r: all(k in r for k in keys)
 
 
-SEEDS = {"smoke": 1}  # seeds per trained cell in the pipeline; 3 elsewhere (smoke checks the plumbing)
+SEEDS = {"smoke": 1}  # the ablation's seeds per method in the pipeline; 3 elsewhere (smoke checks the plumbing)
+# Seeds of the cells only the sweep and the speed/accuracy chart train (the betas and sizes between the ablation's);
+# the cells they reuse take all the ablation's seeds. Quick keeps one: three would add ~70 min on a 2-core CPU,
+# and the ablation's 3-seed spreads (0.1-0.6 points) say how far a one-seed point can be trusted.
+NEW_CELL_SEEDS = {"smoke": 1, "quick": 1}
 
 
 def _seeds(preset: str) -> list:
@@ -117,8 +121,8 @@ def _reads_ablation(preset: str, work) -> list:
 
 
 def _trains_seeds(preset: str, work) -> list:
-    """Reads the ablation's runs and trains its own cells with the pipeline's seeds."""
-    return [*_reads_ablation(preset, work), *_seeds(preset)]
+    """Reads the ablation's runs (with all their seeds) and trains its own cells with NEW_CELL_SEEDS."""
+    return [*_reads_ablation(preset, work), "--seeds", str(NEW_CELL_SEEDS.get(preset, 3))]
 
 
 def _bench(only: str | None) -> Callable:

@@ -260,7 +260,7 @@ def run(cfg: dict, methods, sizes, n_seeds: int, out, data_dir=None, full_grid: 
     data_root = common.ensure_data(cfg, data_dir, progress=progress)
     seeds = kernel.seeds(cfg, n_seeds)
     cells = grid(cfg, methods, sizes, full=full_grid)
-    per_run, run_dirs, reused = {}, {}, []
+    per_run, run_dirs, reused, cell_seeds = {}, {}, [], {}
     for size, method in tqdm(cells, desc="pareto cells", disable=not progress or len(cells) < 2):
         spec, scfg = registry.get(method), size_cfg(cfg, size)
         label = f"{method}@{size}"
@@ -268,9 +268,12 @@ def run(cfg: dict, methods, sizes, n_seeds: int, out, data_dir=None, full_grid: 
         own_size = not size_table(cfg["preset"])[size][1]  # the ablation trains exactly this model
         # loaded once per cell, and only if one of its seeds trains here
         backbone = functools.cache(functools.partial(backbone_for, cfg, scfg, size, spec, data_root, force, progress))
-        for seed in seeds:
-            r = kernel.run(scfg, spec, seed, data_root, out, backbone=backbone,
-                           reuse_from=reuse_from if own_size else None, size=size, force=force, progress=progress)
+        source = reuse_from if own_size else None
+        # a cell the ablation trained also gets every further seed it has, at no cost
+        cell_seeds[label] = kernel.seeds_for(scfg, spec, n_seeds, data_root, source)
+        for seed in cell_seeds[label]:
+            r = kernel.run(scfg, spec, seed, data_root, out, backbone=backbone, reuse_from=source, size=size,
+                           force=force, progress=progress)
             if r.reused:
                 reused.append(str(r.dir))
             per_run.setdefault(label, []).append(r.result)
@@ -296,7 +299,7 @@ def run(cfg: dict, methods, sizes, n_seeds: int, out, data_dir=None, full_grid: 
         kind = size_table(cfg["preset"])[size][0]
         rows.append({"label": label, "method": method, "size": size, "backbone": kind,
                      "model": size_cfg(cfg, size)["model"][kind], "table1": agg["table1"][label]["mean"],
-                     "table2": agg["table2"][label]["mean"], **speed[label],
+                     "table2": agg["table2"][label]["mean"], "seeds": cell_seeds[label], **speed[label],
                      "runs": [str(d) for d in run_dirs[label]]})
     fronts = {key: [rows[i]["label"] for i in pareto_front(_xy(rows, y, x), (x_min, True))]
               for key, y, x, x_min, _ in PANELS}
@@ -352,17 +355,19 @@ def markdown(results: dict) -> str:
     m = results["machine"]
     sizes = ", ".join(f"{s} = {k} {v or '(preset)'}" for s, (k, v) in results["sizes"].items())
     lines = [f"# Speed against accuracy ({results['preset']} preset, commit {_short(results['commit'])})\n",
-             f"Seeds {results['seeds']}; grid {results['grid']}; sizes: {sizes}.",
+             f"Seeds {results['seeds']} per cell, and every further seed of a cell the ablation trained (the seeds "
+             f"column); grid {results['grid']}; sizes: {sizes}.",
              f"Overrides of the preset: {', '.join(results.get('overrides') or []) or 'none'}.",
              f"Machine: {m['cpu_model']}, {m['cores']} cores; load average {_la(m['loadavg_before'])} before and "
              f"{_la(m['loadavg_after'])} after timing; steal {m['steal']['steal']:.1%}, busy {m['steal']['busy']:.1%} "
              "during it. Compare only within this run.\n"]
     rows = []
     for r in results["cells"]:
-        rows.append([r["label"], f"{r['params_total']:,}", f"{r['params_trainable']:,}",
+        rows.append([r["label"], len(r.get("seeds", results["seeds"])), f"{r['params_total']:,}",
+                     f"{r['params_trainable']:,}",
                      common.fmt(r["table1"], 2), common.fmt(r["table2"], 2), f"{r['latency_b1_ms']:.2f}",
                      f"{r['latency_b32_ms']:.1f}", f"{r['b32_img_s']:.0f}", f"{r['train_img_s']:.0f}"])
-    lines.append(common.md_table(["method@size", "params", "trainable", "Table I nl1 %", "Table II nl1 %",
+    lines.append(common.md_table(["method@size", "seeds", "params", "trainable", "Table I nl1 %", "Table II nl1 %",
                                   "latency b1 ms", "latency b32 ms", "infer img/s b32", "train img/s"], rows))
     lines.append("Pareto fronts (non-dominated: lower error and lower latency/params or higher throughput):\n")
     for key, _, _, _, title in PANELS:
@@ -400,6 +405,8 @@ def plot(results: dict, path: Path) -> Path:
         on_front = set(pareto_front(xy, (x_min, True)))
         for r, (a, b) in zip(rows, xy):
             ax.scatter(a, b, color=colours[r["method"]], marker=markers.get(r["size"], "o"), s=45, zorder=3)
+            if r[y].get("n", 1) >= 2:  # the seeds' spread of the error; none drawn for one seed
+                ax.errorbar(a, b, yerr=r[y]["std"], color=colours[r["method"]], lw=1, capsize=0, zorder=2)
         front = sorted((xy[i] for i in on_front), key=lambda p: p[0])
         if front:
             fx, fy = zip(*front)
@@ -423,10 +430,13 @@ def plot(results: dict, path: Path) -> Path:
     handles = [plt.Line2D([], [], color=colours[m], marker="o", ls="", label=style.name(m)) for m in methods]
     handles += [plt.Line2D([], [], color="grey", marker=markers.get(s, "o"), ls="", label=s) for s in results["sizes"]]
     handles.append(plt.Line2D([], [], color="k", marker="o", mfc="none", ls="--", label="Pareto front"))
+    if any(r[y]["n"] >= 2 for r in rows for y in ("table1", "table2") if "n" in r[y]):
+        handles.append(plt.Line2D([], [], color="grey", lw=1, label="error ± std over seeds"))
     fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 6), fontsize=8)
     fig.suptitle(f"Speed vs accuracy — {results['preset']} preset, commit {_short(results['commit'])}, "
                  f"{results['machine']['cpu_model']} (load {_la(results['machine']['loadavg_before'])})", fontsize=10)
-    common.stamp(fig, results["preset"], results.get("seeds", [0]), results.get("commit", "?"))
+    seeds = sorted({int(k) for r in rows for k in r.get("seeds", results.get("seeds", [0]))})
+    common.stamp(fig, results["preset"], seeds, results.get("commit", "?"))
     fig.tight_layout(rect=(0, 0.06, 1, 0.96))
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments import common, kernel, tables
+from experiments import common, kernel, style, tables
 from experiments import paper_numbers as P
 from ffjax import registry
 
@@ -104,20 +104,22 @@ def run(cfg, base, betas, alpha, n_seeds, out, ablation_dir=None, data_dir=None,
         backbone = kernel.pretrained_backbone(cfg, base.backbone, data_root, force, progress)
         timings[f"pretrain_{base.backbone}_s"] = round(time.perf_counter() - t, 1)
     seeds = kernel.seeds(cfg, n_seeds)
+    reuse_from = None if force else ablation_dir  # --force retrains here rather than reusing the ablation's runs
     per_beta = {}
     for beta, spec in specs.items():
         runs, per_seed = [], []
-        for seed in seeds:
-            # --force retrains here rather than reusing the ablation's run
+        # a beta the ablation trained (DINO R, DINO RD) also gets every further seed it has, at no cost
+        beta_seeds = kernel.seeds_for(cfg, spec, n_seeds, data_root, reuse_from)
+        for seed in beta_seeds:
             r = kernel.run(cfg, spec, seed, data_root, out, backbone=lambda: backbone,
-                           reuse_from=None if force else ablation_dir, force=force, progress=progress)
+                           reuse_from=reuse_from, force=force, progress=progress)
             timings["train_s"].setdefault(f"{beta:g}", []).append(r.train_s)
             timings["eval_s"].setdefault(f"{beta:g}", []).append(r.eval_s)
             per_seed.append(scores(r.result))
             runs.append(str(r.dir))
         per_beta[f"{beta:g}"] = {
             "beta": beta, "alpha": alpha, "ratio": beta / alpha, "method": spec.name, "paper_name": spec.paper_name,
-            "depth_head": spec.depth_head, "run_dirs": runs, "per_seed": per_seed,
+            "depth_head": spec.depth_head, "seeds": beta_seeds, "run_dirs": runs, "per_seed": per_seed,
             **{m: common.mean_std([s[m] for s in per_seed]) for m in METRICS},
         }
     timings["total_s"] = round(time.perf_counter() - t0, 1)
@@ -138,12 +140,26 @@ def _fmt(ms: dict) -> str:
     return common.fmt(ms, 2)
 
 
+def _gap_noise(z: dict, b: dict) -> str:
+    """Whether a gap between two cells (mean_std dicts) exceeds the seeds' spread; a 1-seed cell is taken to
+    spread like the other (the only spread measured), and the sentence says so."""
+    nz, nb = z.get("n", 1), b.get("n", 1)
+    if nz > 1 and nb > 1:
+        spread, how = np.hypot(z["std"], b["std"]), "the seeds' spread"
+    elif max(nz, nb) > 1:
+        known, n = (z, nz) if nz > 1 else (b, nb)
+        spread, how = np.hypot(known["std"], known["std"]), f"the {n}-seed spread taken for both"
+    else:
+        return ""
+    resolved = abs(b["mean"] - z["mean"]) > spread
+    return f"; the gap is {'larger' if resolved else 'NOT larger'} than {how} ({spread:.2f})"
+
+
 def finding(results: dict) -> str:
     """Plain sentences from the numbers: beta = 0 against the best beta > 0 and the base's default."""
     pb = results["per_beta"]
     zero = pb.get("0")
     weighted = {k: v for k, v in pb.items() if v["beta"] > 0}
-    n = len(results["seeds"])
     if zero is None or not weighted:
         return "The sweep needs beta = 0 and at least one beta > 0 to say whether the depth head helps."
     out = []
@@ -155,42 +171,48 @@ def finding(results: dict) -> str:
         b = weighted[best_k][m]
         rel = (b["mean"] - z["mean"]) / z["mean"] * 100
         verdict = "helps" if rel < 0 else "does not help"
-        noise = ""
-        if n > 1:
-            spread = np.hypot(z["std"], b["std"])
-            resolved = abs(b["mean"] - z["mean"]) > spread
-            noise = f"; the gap is {'larger' if resolved else 'NOT larger'} than the seeds' spread ({spread:.2f})"
         out.append(f"On {METRICS[m]} the depth head {verdict}: beta = 0 (no head) {z['mean']:.2f}% vs "
-                   f"{b['mean']:.2f}% at the best beta/alpha = {weighted[best_k]['ratio']:g} ({rel:+.0f}%){noise}.")
+                   f"{b['mean']:.2f}% at the best beta/alpha = {weighted[best_k]['ratio']:g} ({rel:+.0f}%)"
+                   f"{_gap_noise(z, b)}.")
     base_beta = f"{registry.get(results['base']).beta:g}"
     if base_beta in weighted and base_beta != "0":
         d = weighted[base_beta]
         out.append(f"At the default beta = {base_beta} ({d['paper_name']}): unseen objects "
                    f"{d['unseen_objects']['mean']:.2f}%, unseen sensors {d['unseen_sensors']['mean']:.2f}%.")
-    if n == 1:
+    single = [k for k, v in pb.items() if len(v["per_seed"]) == 1]
+    if len(single) == len(pb):
         out.append("One seed per beta: differences of a few tenths of a percent are within run-to-run noise "
                    "(run --seeds 3 to measure it).")
+    elif single:
+        out.append(f"One seed at beta = {', '.join(single)}: their points show the trend, not its spread.")
     return " ".join(out)
 
 
 def _table(results: dict) -> tuple[list, list, list]:
-    header = ["beta", "beta/alpha", "method", "depth head"] + [METRICS[m] for m in METRICS]
+    header = ["beta", "beta/alpha", "method", "depth head", "seeds"] + [METRICS[m] for m in METRICS]
     rows, csv_rows = [], []
     for k, v in results["per_beta"].items():
-        rows.append([k, f"{v['ratio']:g}", v["paper_name"], "yes" if v["depth_head"] else "absent"]
+        n = len(v["per_seed"])
+        rows.append([k, f"{v['ratio']:g}", v["paper_name"], "yes" if v["depth_head"] else "absent", n]
                     + [_fmt(v[m]) for m in METRICS])
-        csv_rows.append([v["beta"], v["ratio"], v["method"], int(v["depth_head"])]
+        csv_rows.append([v["beta"], v["ratio"], v["method"], int(v["depth_head"]), n]
                         + [x for m in METRICS for x in (v[m]["mean"], v[m]["std"])])
-    csv_header = ["beta", "beta_over_alpha", "method", "depth_head"] + [f"{m}_{s}" for m in METRICS
-                                                                           for s in ("mean", "std")]
+    csv_header = ["beta", "beta_over_alpha", "method", "depth_head", "seeds"] + [f"{m}_{s}" for m in METRICS
+                                                                                    for s in ("mean", "std")]
     return header, rows, [csv_header, csv_rows]
+
+
+def _seed_text(results: dict) -> str:
+    """'3 seeds', or '1-3 seeds per beta' when the betas the ablation trained have more."""
+    counts = sorted({len(v["per_seed"]) for v in results["per_beta"].values()})
+    return f"{counts[0]} seed(s)" if len(counts) == 1 else f"{counts[0]}-{counts[-1]} seeds per beta"
 
 
 def write_all(results: dict, out: Path) -> None:
     header, rows, (csv_header, csv_rows) = _table(results)
     text = (f"# Loss-weight sweep: alpha * L1(force) + beta * MSE(depth), base {results['base']} "
-            f"(preset {results['preset']}, {len(results['seeds'])} seed(s), commit {results['commit'][:12]})\n\n"
-            f"Normalized L1 error %, mean ± std over seeds. beta = 0: {results['beta0']}.\n\n"
+            f"(preset {results['preset']}, {_seed_text(results)}, commit {results['commit'][:12]})\n\n"
+            f"Normalized L1 error %, mean ± std over seeds (± only over 2 or more). beta = 0: {results['beta0']}.\n\n"
             + common.md_table(header, rows) + "\n" + results["finding"] + "\n\n![sweep](sweep.png)\n")
     common.write_text(out / "sweep.md", text)
     common.write_csv(out / "sweep.csv", csv_header, csv_rows)
@@ -211,26 +233,29 @@ def plot(results: dict, path: Path) -> Path:
     pos = sorted((v for v in pb.values() if v["beta"] > 0), key=lambda v: v["ratio"])
     shown = [m for m in ("unseen_objects", "unseen_sensors", "digit")
              if any(np.isfinite(v[m]["mean"]) for v in pb.values())]
-    multi = len(results["seeds"]) >= 2  # error bars (and "mean ± std") only over two or more seeds
     fig, axes = plt.subplots(1, 2 * len(shown), figsize=(4.6 * len(shown), 3.6), squeeze=False,
                              gridspec_kw={"width_ratios": [1, 4] * len(shown)})
+
+    def mean_dot(ax, x, v, m, marker, color):
+        """A cell's mean: ± std over seeds with two or more, else a hollow marker (one seed, spread unknown)."""
+        multi = len(v["per_seed"]) >= 2
+        ax.errorbar([x], [v[m]["mean"]], yerr=[v[m]["std"]] if multi else None, fmt=marker, color=color,
+                    mfc=color if multi else "white", capsize=3, zorder=3)
+        ax.scatter([x] * len(v["per_seed"]), [s[m] for s in v["per_seed"]], s=10, color="k", alpha=0.5, zorder=4)
+
     for i, m in enumerate(shown):
         a0, a1 = axes[0, 2 * i], axes[0, 2 * i + 1]
         if zero:
-            a0.errorbar([0], [zero[m]["mean"]], yerr=[zero[m]["std"]] if multi else None, fmt="s", color="C3",
-                        capsize=3)
-            a0.scatter([0] * len(zero["per_seed"]), [s[m] for s in zero["per_seed"]], s=10, color="k", alpha=0.5)
+            mean_dot(a0, 0, zero, m, "s", "C3")
         a0.set_xticks([0])
         a0.set_xticklabels(["0\n(no head)"])
         a0.set_xlim(-1, 1)
         a0.set_ylabel(f"{METRICS[m]}\nnormalized L1 error (%)", fontsize=8)
         if pos:
             x = [v["ratio"] for v in pos]
-            a1.errorbar(x, [v[m]["mean"] for v in pos], yerr=[v[m]["std"] for v in pos] if multi else None,
-                        fmt="o-", color="C0", capsize=3, label="mean ± std over seeds" if multi else "1 seed")
+            a1.plot(x, [v[m]["mean"] for v in pos], "-", color="C0", zorder=2)
             for v in pos:
-                a1.scatter([v["ratio"]] * len(v["per_seed"]), [s[m] for s in v["per_seed"]], s=10, color="k",
-                           alpha=0.5)
+                mean_dot(a1, v["ratio"], v, m, "o", "C0")
             a1.set_xscale("log")
             # ticks at the swept ratios: a log axis over 0.1-10 otherwise labels only 10^0 and 10^1
             a1.xaxis.set_major_locator(FixedLocator(x))
@@ -238,14 +263,18 @@ def plot(results: dict, path: Path) -> Path:
             a1.xaxis.set_minor_locator(NullLocator())
             if zero:
                 a1.axhline(zero[m]["mean"], color="C3", ls=":", lw=1, label="beta = 0")
+            a1.plot([], [], "o", color="C0", label="mean ± std (2+ seeds)")
+            a1.plot([], [], "o", color="C0", mfc="white", label="1 seed")
+            a1.scatter([], [], s=10, color="k", alpha=0.5, label="each seed")
             a1.legend(fontsize=7, loc="best")
         a1.set_xlabel("beta / alpha (depth-loss weight)")
         a1.sharey(a0)
         a1.tick_params(labelleft=False)
         a1.set_title(METRICS[m], fontsize=9)
-    fig.suptitle(f"Loss-weight sweep ({tables._name(results['base'])}, preset {results['preset']}, "
-                 f"{len(results['seeds'])} seed(s))", fontsize=10)
-    common.stamp(fig, results["preset"], results["seeds"], results.get("commit", "?"))
+    fig.suptitle(f"Loss-weight sweep ({style.name(results['base'])}, preset {results['preset']}, "
+                 f"{_seed_text(results)})", fontsize=10)
+    seeds = sorted({int(s) for v in results["per_beta"].values() for s in v.get("seeds", results["seeds"])})
+    common.stamp(fig, results["preset"], seeds, results.get("commit", "?"))
     return tables.save_png(fig, Path(path))
 
 

@@ -47,6 +47,30 @@ def test_sweep_writes_files_and_reuses_the_ablation_run(abl):
     assert "depth head" in res["finding"] and "beta" in (out / "sweep.md").read_text()
 
 
+def test_a_reused_beta_takes_every_seed_the_ablation_finished(abl, tmp_path):
+    import shutil
+
+    import configs
+    from experiments import common, kernel
+
+    root, data, out_abl = abl
+    cfg, spec = configs.get("smoke"), registry.get(METHOD)
+    runs = tmp_path / "ablation" / "runs" / METHOD
+    for seed in (0, 1, 2):
+        shutil.copytree(out_abl / "runs" / METHOD / "seed0", runs / f"seed{seed}")
+    stage = common.read_json(runs / "seed1" / "stage.json")
+    common.write_json(runs / "seed1" / "stage.json", {**stage, "key": kernel.train_key(cfg, spec, 1, data)})
+    # seed2 keeps seed 0's key: a run trained with another key is never taken
+    assert kernel.seeds_for(cfg, spec, 1, data, tmp_path / "ablation") == [0, 1]
+    assert kernel.seeds_for(cfg, spec, 1, data, None) == [0]
+    out = tmp_path / "sweep"
+    sweep_loss.main(["--preset", "smoke", "--base", METHOD, "--betas", "10", "--seeds", "1", "--ablation",
+                     str(tmp_path / "ablation"), "--out", str(out), "--data", str(data), "--quiet"])
+    ten = json.loads((out / "results.json").read_text())["per_beta"]["10"]
+    assert ten["seeds"] == [0, 1] and ten["unseen_objects"]["n"] == 2
+    assert "2 seed(s)" in (out / "sweep.md").read_text()
+
+
 def test_variant_is_registry_data():
     base = registry.get("dino_rd")
     assert sweep_loss.variant(base, 10) is base
