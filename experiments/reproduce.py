@@ -53,6 +53,13 @@ def publish(src: Path, dst: Path) -> None:
     tmp.rename(dst)
 
 
+def merged_record(path: Path, record: dict) -> dict:
+    """reproduce.json at path updated by this call's record: an --only call replaces its experiments' entries
+    (each keeps the commit it ran) and leaves the others'."""
+    previous = common.read_json(path) or {}
+    return {**previous, **record, "experiments": {**previous.get("experiments", {}), **record["experiments"]}}
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
     ap.add_argument("--preset", default="quick", choices=configs.PRESETS)
@@ -89,16 +96,15 @@ def main(argv=None) -> dict:
         print(f"[reproduce] {exp.name}: python -m {exp.module} {' '.join(line)}", file=sys.stderr, flush=True)
         fresh = not (work / exp.name).exists()  # else cached stages may be reused: its wall time is not its cost
         record["experiments"][exp.name] = {"argv": line, "wall_s": run_one(exp, line), "fresh": fresh,
-                                           "load_after": list(os.getloadavg())}
+                                           "commit": commit, "load_after": list(os.getloadavg())}
     record["wall_s"] = round(time.perf_counter() - t0, 1)
     record["load_end"] = list(os.getloadavg())
-    common.write_json(work / "reproduce.json", record)
+    common.write_json(work / "reproduce.json", merged_record(work / "reproduce.json", record))
     if dest is not None:
         dest.mkdir(parents=True, exist_ok=True)
         for exp in chosen:
             publish(work / exp.name, dest / exp.name)
-        previous = common.read_json(dest / "reproduce.json") or {}
-        merged = {**previous, **record, "experiments": {**previous.get("experiments", {}), **record["experiments"]}}
+        merged = merged_record(dest / "reproduce.json", record)
         common.write_json(dest / "reproduce.json", merged)
         rows = status.check_all(dest)
         common.write_text(dest / "README.md", status.index(rows, dest, merged))

@@ -143,9 +143,12 @@ def index(rows, root, record: dict | None = None) -> str:
              "today's HEAD).", ""]
     if record:
         total = sum(v["wall_s"] for v in runs.values())
-        lines += [f"Made by `python -m experiments.reproduce --preset {record['preset']}` at commit "
-                  f"`{record['commit'][:12]}`: {total / 60:.0f} min wall in all, load average "
-                  f"{record['load_start'][0]:.1f} at the start and {record['load_end'][0]:.1f} at the end.", ""]
+        commits = sorted({v.get("commit", record["commit"])[:12] for v in runs.values()})
+        lines += [f"Made by `python -m experiments.reproduce --preset {record['preset']}` at commit"
+                  f"{'s' if len(commits) > 1 else ''} {', '.join(f'`{c}`' for c in commits)}: "
+                  f"{total / 60:.0f} min wall in all (the experiments' times summed), load average "
+                  f"{record['load_start'][0]:.1f} at the start of the last call and {record['load_end'][0]:.1f} "
+                  "at its end.", ""]
     body = []
     for r in rows:
         e = r.experiment

@@ -115,3 +115,13 @@ def test_publish_leaves_the_trained_runs_behind(tmp_path):
     (dst / "stale.md").write_text("old")
     reproduce.publish(src, dst)
     assert sorted(p.name for p in dst.iterdir()) == ["results.json", "table1.md"]
+
+
+def test_an_only_call_keeps_the_other_experiments_records(tmp_path):
+    path = tmp_path / "reproduce.json"
+    common.write_json(path, {"preset": "quick", "commit": "a" * 40,
+                             "experiments": {"ablation": {"wall_s": 10.0, "commit": "a" * 40}}})
+    merged = reproduce.merged_record(path, {"preset": "quick", "commit": "b" * 40,
+                                            "experiments": {"sweep_loss": {"wall_s": 5.0, "commit": "b" * 40}}})
+    assert set(merged["experiments"]) == {"ablation", "sweep_loss"} and merged["commit"] == "b" * 40
+    assert merged["experiments"]["ablation"]["commit"] == "a" * 40  # each entry keeps the commit it ran
