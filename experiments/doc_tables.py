@@ -1,0 +1,134 @@
+"""The result tables in README and docs/*.md, generated from the published results they cite, so the text and
+the results cannot disagree.
+
+    python -m experiments.doc_tables            # rewrite every generated table from the results it names
+    python -m experiments.doc_tables --check    # exit 1 when a document's table differs from its results
+
+Two kinds of block, each between an opening marker and its closing one:
+- `<!-- results-table: FOLDER [SEEDS_FOLDER] -->` ... `<!-- /results-table -->` (README): validation and
+  Tables I-III of an ablation results folder, the paper's row under each, mean ± std where it has 2+ seeds;
+  SEEDS_FOLDER optionally one with more seeds for some methods, shown beside the first.
+- `<!-- result-include: FILE.md -->` ... `<!-- /result-include -->` (any document): the first Markdown table of
+  a result's FILE.md (a path from the repository root), copied as it is.
+The test suite runs the check.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+
+from experiments import common, style
+from experiments import paper_numbers as P
+
+README = common.ROOT / "README.md"
+DOCUMENTS = (README, *sorted((common.ROOT / "docs").glob("*.md")))
+_BLOCK = re.compile(r"(<!-- results-table: (?P<args>[^>]*?) -->\n)(?P<body>.*?)(<!-- /results-table -->)", re.S)
+_INCLUDE = re.compile(r"(<!-- result-include: (?P<args>[^>]*?) -->\n)(?P<body>.*?)(<!-- /result-include -->)", re.S)
+_CALIB = ("mini-2/gel-1", "mini-3/gel-2")
+
+
+def _f(x: float) -> str:
+    return f"{x:.1f}"
+
+
+def table(main: dict, more_seeds: dict | None = None) -> str:
+    """The markdown table: validation, Tables I-III of `main` with the paper's row under each; a method that
+    `more_seeds` also holds gets its mean ± std over those seeds beside Tables I and II."""
+    methods = list(main["table1"])
+    extra = more_seeds or {}
+
+    n = len(main.get("seeds", []))
+
+    def cell(ms: dict) -> str:  # mean ± std over the folder's seeds; the mean alone for one seed
+        return common.fmt(ms) if n >= 2 else _f(ms["mean"])
+
+    def with_seeds(key: str, m: str) -> str:
+        text = cell(main[key][m]["mean"])
+        if m in extra.get(key, {}) and len(extra.get("seeds", [])) >= 2:
+            text += f" ({len(extra['seeds'])} seeds: {common.fmt(extra[key][m]['mean'])})"
+        return text
+
+    def paper(numbers: dict, pick) -> list:
+        return [pick(numbers[m]) if m in numbers else "–" for m in methods]
+
+    val = main["training"]["methods"]
+    rows = [
+        ["validation, training sensor", *(cell(val[m]["val_nl1"]) for m in methods)],
+        ["Table I, 10 unseen objects", *(with_seeds("table1", m) for m in methods)],
+        ["paper", *paper(P.TABLE1, lambda v: _f(v[-1]))],
+        ["Table II, 9 GelSight units × gels", *(with_seeds("table2", m) for m in methods)],
+        ["paper", *paper(P.TABLE2, lambda v: _f(v[-1]))],
+        ["Table III, after calibration (mini-2 gel 1 / mini-3 gel 2)",
+         *(" / ".join(cell(main["table3"][m][t]["after"]) for t in _CALIB) for m in methods)],
+        ["paper", *paper(P.TABLE3, lambda v: f"{_f(v[0])} / {_f(v[1])}")],
+    ]
+    return common.md_table(["", *(style.name(m) for m in methods)], rows)
+
+
+def _render(match: re.Match) -> str:
+    folders = match.group("args").split()
+    loaded = []
+    for f in folders:
+        results = common.read_json(common.ROOT / f / "results.json")
+        if results is None:
+            raise FileNotFoundError(f"a results-table block names {f}, which holds no results.json")
+        loaded.append(results)
+    return match.group(1) + table(*loaded).rstrip("\n") + "\n" + match.group(4)
+
+
+def first_table(text: str) -> str:
+    """The first Markdown table of a text: its consecutive lines that start with '|'."""
+    lines = text.splitlines()
+    start = next((i for i, line in enumerate(lines) if line.startswith("|")), None)
+    if start is None:
+        return ""
+    end = next((i for i in range(start, len(lines)) if not lines[i].startswith("|")), len(lines))
+    return "\n".join(lines[start:end])
+
+
+def _include(match: re.Match) -> str:
+    path = common.ROOT / match.group("args").strip()
+    if not path.is_file():
+        raise FileNotFoundError(f"a result-include block names {path.relative_to(common.ROOT)}, which does not exist")
+    body = first_table(path.read_text())
+    if not body:
+        raise ValueError(f"{path.relative_to(common.ROOT)} holds no Markdown table to include")
+    return match.group(1) + body + "\n" + match.group(4)
+
+
+def regenerate(text: str) -> str:
+    """A document's text with every generated block rewritten from the results it names."""
+    return _INCLUDE.sub(_include, _BLOCK.sub(_render, text))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
+    ap.add_argument("--check", action="store_true", help="only compare; exit 1 when a document differs")
+    args = ap.parse_args(argv)
+    if not _BLOCK.search(README.read_text()):
+        raise ValueError("README.md has no <!-- results-table: FOLDER --> ... <!-- /results-table --> block")
+    differ = []
+    for doc in DOCUMENTS:
+        text = doc.read_text()
+        new = regenerate(text)
+        if new != text:
+            differ.append(doc.relative_to(common.ROOT))
+            if not args.check:
+                common.write_text(doc, new)
+    if args.check:
+        if differ:
+            print(f"tables differ from their results in {', '.join(map(str, differ))}: python -m "
+                  "experiments.doc_tables", file=sys.stderr)
+            return 1
+        print("every generated table matches its results")
+        return 0
+    print(f"rewrote {', '.join(map(str, differ))}" if differ else "every generated table was already current")
+    return 0
+
+
+if __name__ == "__main__":
+    from ffjax import cli
+
+    sys.exit(cli.run(main))
