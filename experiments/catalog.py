@@ -163,7 +163,7 @@ EXPERIMENTS = (
     Experiment("bench", "experiments.bench",
                "ffjax against PyTorch: train and inference speed, scaling, the loop against its step",
                lambda r: r.get("experiment") == "bench", _replot_bench, args=_bench(None),
-               numbers=("experiments/bench",), in_pipeline=False, takes_common_flags=False),
+               numbers=("experiments/bench",), takes_common_flags=False),
     Experiment("contact_probe", "experiments.diagnostics.contact_probe",
                "Where a contact's edge is read: the layer's contact against the rendered frame",
                _has("edge_mm", "per_shape"), _replot_probe("contact_probe"),

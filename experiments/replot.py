@@ -1,6 +1,6 @@
 """Re-render an experiment's tables and figures from its results.json with the current code (no training).
 
-    python -m experiments.replot docs/results/ablation-quick [more folders ...]
+    python -m experiments.replot docs/results/quick/ablation [more folders ...]
 
 For the folders of every experiment in `experiments.catalog` that re-renders: `experiments.ablation` (Tables
 I-III), `.stability`, `.sweep_loss`, `.pareto`, and the figures of `.bench`, `.downstream` and the diagnostics

@@ -1,16 +1,7 @@
-"""experiments.pareto: the Pareto front on hand-made points, and a smoke run (2 sizes x 1 method) that writes
-every file with positive, finite numbers. No timed assertions: the machine is shared."""
-
-import json
-import math
-
-import pytest
+"""experiments.pareto: the Pareto front on hand-made points, the grid and the size configs. Its smoke run is part
+of the whole pipeline's test (test_reproduce.py). No timed assertions: the machine is shared."""
 
 from experiments import pareto
-
-# No pretraining in the smoke run (it would double the test's time); test_backbone_folder_per_size covers
-# how a pretrained method gets its size's backbone.
-METHOD = "dino_rd_scratch"
 
 
 def test_front_minimizes_both_axes():
@@ -64,31 +55,3 @@ def test_backbone_folder_per_size(tmp_path, monkeypatch):
     assert len(folders) == 2 and all(f.parent == tmp_path / "pretrained" for f in folders)
     assert tmp_path / "pretrained" / "vit" not in folders  # the preset's own (the ablation's) stays apart
     assert pareto.backbone_for(cfg, cfg, "vit-s", registry.get("dino_rd_scratch"), tmp_path, False, False) is None
-
-
-@pytest.fixture(scope="module")
-def smoke(tmp_path_factory):
-    root = tmp_path_factory.mktemp("pareto")
-    out = root / "out"
-    # its own data folder: tests never write into the user's data/smoke
-    pareto.main(["--preset", "smoke", "--methods", METHOD, "--sizes", "vit-xs", "vit-s", "--out", str(out),
-                 "--ablation", "none", "--data", str(root / "data"), "--quiet"])
-    return out
-
-
-def test_smoke_run_writes_files_with_finite_numbers(smoke):
-    for name in ("results.json", "pareto.md", "pareto.csv", "pareto.png"):
-        assert (smoke / name).stat().st_size > 0, name
-    res = json.loads((smoke / "results.json").read_text())
-    assert res["preset"] == "smoke" and res["seeds"] == [0] and "commit" in res
-    assert {"cpu_model", "loadavg_before", "loadavg_after", "steal"} <= set(res["machine"])
-    assert [c["label"] for c in res["cells"]] == [f"{METHOD}@vit-xs", f"{METHOD}@vit-s"]
-    for c in res["cells"]:
-        for k in ("latency_b1_ms", "latency_b32_ms", "train_img_s", "b32_img_s", "params_total", "params_trainable"):
-            assert c[k] > 0 and math.isfinite(c[k]), (c["label"], k)
-        assert 0 < c["table1"]["mean"] < 1e3 and 0 < c["table2"]["mean"] < 1e3
-    small, big = res["cells"]
-    assert small["params_total"] < big["params_total"]
-    assert set(res["fronts"]) == {p[0] for p in pareto.PANELS} and all(res["fronts"].values())
-    assert f"{METHOD}@vit-s" in (smoke / "pareto.md").read_text()
-    assert len((smoke / "pareto.csv").read_text().strip().splitlines()) == 3

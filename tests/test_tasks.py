@@ -3,8 +3,6 @@ rule, and the experiment CLI end to end at the smoke preset."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
@@ -99,40 +97,6 @@ def test_cup_stiffness_from_ring_theory():
     assert k == pytest.approx(3000.0 / (0.14878 * 40.0**3), rel=1e-3)
     for f in grasping.FRUITS:
         assert 0 < f.gentle_n < f.firm_n
-
-
-def test_downstream_cli_smoke(tmp_path):
-    from _smoke_run import smoke_run
-
-    from experiments import downstream
-    from ffjax.inference import BackgroundWarning
-
-    out = tmp_path / "ds"
-    with pytest.warns(BackgroundWarning, match="another sensor or gel"):  # the gripper's second unit, mini-2
-        res = downstream.main(
-            ["--preset", "smoke", "--checkpoint", str(smoke_run()), "--out", str(out), "--quiet"]
-        )
-    for name in (
-        "results.json",
-        "table4.md",
-        "grasping.md",
-        "table4.csv",
-        "push_duration.csv",
-        "grasp_cup.csv",
-        "grasp_fruits.csv",
-        "push_force.png",
-        "push_duration.png",
-        "grasp_steps.png",
-    ):
-        assert (out / name).is_file(), name
-    saved = json.loads((out / "results.json").read_text())
-    assert saved["preset"] == "smoke" and saved["commit"] and saved["timings"]["total_s"] > 0
-    assert set(saved["pushing"]["table"]) == {"dino_rd", "perfect"}
-    perfect = res["pushing"]["table"]["perfect"]
-    for obj in pushing.OBJECTS:  # perfect tactile sensor: only the reference's drift and noise remain
-        assert perfect[obj.name]["weight_error"]["mean"] < 0.05 * obj.mass_kg
-    assert "Weight(1)" in (out / "table4.md").read_text() and "(2.05)" in (out / "table4.md").read_text()
-    assert res["grasping"]["summary"]["cup"]["perfect"]["1.74"]["reached"] == 1.0
 
 
 def test_model_sensor_says_a_background_warning_once_per_message():

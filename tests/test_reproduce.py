@@ -1,0 +1,109 @@
+"""The whole pipeline at the smoke preset, end to end: `experiments.reproduce` runs every experiment of the
+catalog's pipeline, each reusing the ablation's trained runs, publishes each result without its runs, writes
+reproduce.json and the index, and `experiments.status` then calls every published result current.
+
+One test, not several: the pipeline is the expensive part, and under pytest-xdist a module fixture would run
+once per worker that draws one of the module's tests."""
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import _notebooks
+
+import configs
+from experiments import catalog, common, kernel, pareto, reproduce, status
+from ffjax import registry
+from ffjax.tasks import pushing
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _done_runs(tree):
+    """Every run folder trained (finished) under a tree: the folders whose stage.json says done."""
+    return {p.parent for p in tree.rglob("stage.json")
+            if (common.read_json(p) or {}).get("status") == "done" and p.parent.name.startswith("seed")}
+
+
+def test_the_smoke_pipeline_end_to_end(tmp_path, monkeypatch):
+    work, published, data = tmp_path / "work", tmp_path / "published", tmp_path / "data"
+    record = reproduce.main(["--preset", "smoke", "--work", str(work), "--publish", str(published),
+                             "--data", str(data), "--quiet"])
+    pipeline = catalog.pipeline()
+    assert set(record["experiments"]) == {e.name for e in pipeline}
+
+    # every experiment published: the folder its catalog entry names, a results.json of its own kind, no runs
+    for e in pipeline:
+        res = common.read_json(published / e.name / "results.json")
+        assert res is not None, e.name
+        assert catalog.kind_of(res) is e, e.name
+        assert record["experiments"][e.name]["wall_s"] > 0 and record["experiments"][e.name]["commit"]
+    assert not [p for p in published.rglob("*") if p.name in ("runs", "checkpoints", "stage.json")]
+
+    # nothing trained twice: the sweep trains only the betas between the ablation's, the chart only the other
+    # sizes; their reused cells point into the ablation's runs
+    ablation_runs = _done_runs(work / "ablation")
+    assert ablation_runs and all(p.is_relative_to(work / "ablation" / "runs") for p in ablation_runs)
+    sweep = json.loads((published / "sweep_loss" / "results.json").read_text())
+    for beta in ("0", "10"):
+        assert all(d.startswith(str(work / "ablation")) for d in sweep["per_beta"][beta]["run_dirs"]), beta
+    for p in _done_runs(work / "sweep_loss"):
+        assert "dino_rd_b" in str(p)  # a variant the ablation does not train
+    zero = sweep["per_beta"]["0"]
+    assert not zero["depth_head"] and registry.get(zero["method"]).beta == 0
+    assert sweep["checkpoints"][zero["method"]] == zero["run_dirs"]  # so stability can score the sweep's models
+    for m in ("unseen_objects", "unseen_sensors", "digit"):
+        assert 0 < zero[m]["mean"] < 200, m
+    assert "depth head" in sweep["finding"] and "| seeds |" in (published / "sweep_loss" / "sweep.md").read_text()
+
+    chart = json.loads((published / "pareto" / "results.json").read_text())
+    own = {c["label"]: c for c in chart["cells"] if c["size"] in ("vit-s", "resnet")}
+    assert own and all(r.startswith(str(work / "ablation")) for c in own.values() for r in c["runs"])
+    assert {p.parent.parent.name for p in _done_runs(work / "pareto")} <= {"vit-xs", "vit-m"}
+    for c in chart["cells"]:
+        for k in ("latency_b1_ms", "latency_b32_ms", "train_img_s", "b32_img_s", "params_total"):
+            assert c[k] > 0 and math.isfinite(c[k]), (c["label"], k)
+        assert 0 < c["table1"]["mean"] < 1e3 and 0 < c["table2"]["mean"] < 1e3, c["label"]
+    by_label = {c["label"]: c for c in chart["cells"]}
+    assert by_label["dino_rd@vit-xs"]["params_total"] < by_label["dino_rd@vit-m"]["params_total"]
+    assert {p[0] for p in pareto.PANELS} == set(chart["fronts"]) and all(chart["fronts"].values())
+
+    # stability and the downstream tasks read the ablation's checkpoints
+    stab = json.loads((published / "stability" / "results.json").read_text())
+    assert all(r.startswith(str(work / "ablation")) for runs in stab["checkpoints"].values() for r in runs)
+    assert {"noise", "illumination", "force", "shear_angle", "drift", "tilt_shear"} <= set(stab["factors"])
+    for e in stab["factors"].values():
+        assert all(n > 0 for n in e["n"]) and all(len(v["nl1"]) == len(e["levels"]) for v in e["methods"].values())
+    assert not (published / "stability" / "seeds.png").exists()  # one seed at smoke: no seed plot
+    down = json.loads((published / "downstream" / "results.json").read_text())
+    assert all(r.startswith(str(work / "ablation")) for runs in down["checkpoints"].values() for r in runs)
+    perfect = down["pushing"]["table"]["perfect"]
+    for obj in pushing.OBJECTS:  # a perfect tactile sensor: only the reference's drift and noise remain
+        assert perfect[obj.name]["weight_error"]["mean"] < 0.05 * obj.mass_kg, obj.name
+    assert "Weight(1)" in (published / "downstream" / "table4.md").read_text()
+
+    # a cell the ablation trained takes every further seed it finished (here: a copy re-keyed as seed 1)
+    cfg, spec = configs.get("smoke"), registry.get("dino_rd")
+    runs = work / "ablation" / "runs" / "dino_rd"
+    shutil.copytree(runs / "seed0", runs / "seed1")
+    shutil.copytree(runs / "seed0", runs / "seed2")  # seed 0's key: a run trained with another key is never taken
+    stage = common.read_json(runs / "seed1" / "stage.json")
+    common.write_json(runs / "seed1" / "stage.json", {**stage, "key": kernel.train_key(cfg, spec, 1, data)})
+    assert kernel.seeds_for(cfg, spec, 1, data, work / "ablation") == [0, 1]
+    assert kernel.seeds_for(cfg, spec, 1, data, None) == [0]
+
+    # the results notebook shows the published tree (Tables I-III and every companion) without its runs
+    monkeypatch.setenv("FFJAX_RESULTS", str(published / "ablation" / "results.json"))
+    _notebooks.execute(ROOT / "notebooks" / "results.ipynb", published / "ablation", monkeypatch)
+
+    # the index: every result with its command and wall time; status calls them current at this commit
+    index = (published / "README.md").read_text()
+    for e in pipeline:
+        assert f"--only {e.name}`" in index, e.name
+    saved = json.loads((published / "reproduce.json").read_text())
+    assert saved["preset"] == "smoke" and set(saved["experiments"]) == set(record["experiments"])
+    rows = status.check_all(published)
+    assert len(rows) == len(pipeline)
+    if not common.git_commit().endswith("-dirty") and common.git_commit() != "unknown":  # a clean checkout (CI)
+        assert [r.state for r in rows] == ["current"] * len(rows), [(r.folder.name, r.why) for r in rows]
