@@ -143,7 +143,7 @@ def index(rows, root, record: dict | None = None) -> str:
              "today's HEAD).", ""]
     if record:
         total = sum(v["wall_s"] for v in runs.values())
-        commits = sorted({v.get("commit", record["commit"])[:12] for v in runs.values()})
+        commits = sorted({r.commit[:12] for r in rows if r.commit})  # what each result recorded it ran
         lines += [f"Made by `python -m experiments.reproduce --preset {record['preset']}` at commit"
                   f"{'s' if len(commits) > 1 else ''} {', '.join(f'`{c}`' for c in commits)}: "
                   f"{total / 60:.0f} min wall in all (the experiments' times summed), load average "
