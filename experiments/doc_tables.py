@@ -114,7 +114,7 @@ def main(argv=None) -> int:
         text = doc.read_text()
         new = regenerate(text)
         if new != text:
-            differ.append(doc.relative_to(common.ROOT))
+            differ.append(doc.relative_to(common.ROOT) if doc.is_relative_to(common.ROOT) else doc)
             if not args.check:
                 common.write_text(doc, new)
     if args.check:

@@ -117,6 +117,15 @@ def table(rows, root) -> str:
 
 
 def _seeds(results: dict) -> str:
+    """Seeds per cell: '3', or '1-3' where cells differ (a sweep's or a chart's cells reused from the ablation
+    carry its seeds), or the checkpoints' seeds of an experiment that trains none."""
+    per_cell = [len(v["per_seed"]) for v in results.get("per_beta", {}).values()]
+    per_cell += [len(c["seeds"]) for c in results.get("cells", []) if isinstance(c, dict) and "seeds" in c]
+    per_cell += [len(runs) for runs in (results.get("checkpoints") or {}).values()
+                 if "seeds" not in results and isinstance(runs, list)]
+    if per_cell:
+        lo, hi = min(per_cell), max(per_cell)
+        return str(lo) if lo == hi else f"{lo}-{hi}"
     seeds = results.get("seeds")
     if isinstance(seeds, list):
         return str(len(seeds))
