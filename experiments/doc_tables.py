@@ -24,8 +24,14 @@ from experiments import paper_numbers as P
 
 README = common.ROOT / "README.md"
 DOCUMENTS = (README, *sorted((common.ROOT / "docs").glob("*.md")))
-_BLOCK = re.compile(r"(<!-- results-table: (?P<args>[^>]*?) -->\n)(?P<body>.*?)(<!-- /results-table -->)", re.S)
-_INCLUDE = re.compile(r"(<!-- result-include: (?P<args>[^>]*?) -->\n)(?P<body>.*?)(<!-- /result-include -->)", re.S)
+
+
+def _block(tag: str) -> re.Pattern:
+    """`<!-- TAG: ARGS -->` ... `<!-- /TAG -->`: groups 1 (the opening line), args, body and 4 (the closing)."""
+    return re.compile(rf"(<!-- {tag}: (?P<args>[^>]*?) -->\n)(?P<body>.*?)(<!-- /{tag} -->)", re.S)
+
+
+_BLOCK, _INCLUDE = _block("results-table"), _block("result-include")
 _CALIB = ("mini-2/gel-1", "mini-3/gel-2")
 
 
