@@ -30,6 +30,10 @@ def replot(folder) -> str:
         known = ", ".join(e.module for e in catalog.EXPERIMENTS if e.replot)
         raise ValueError(f"{folder}: results.json is not from an experiment that re-renders ({known})")
     exp.replot(results, folder)
+    # the commit it was drawn with (status: "replot" until the figures' sources change again); the numbers'
+    # commit stays. Read again: a re-render may rewrite results.json (the ablation's findings).
+    drawn = common.read_json(folder / "results.json") or results
+    common.write_json(folder / "results.json", {**drawn, "replotted": common.git_commit()})
     return exp.name
 
 

@@ -4,8 +4,10 @@
 
 A result records the commit it ran (results.json "commit"); its experiment (experiments.catalog) names the
 sources its numbers and its figures come from. At HEAD a result is
-- current: none of those sources changed since its commit;
-- replot: only the sources of its tables' text and figures changed (`python -m experiments.replot FOLDER`);
+- current: none of those sources changed since its commit (a change of docstrings, comments or layout is none,
+  nor is a file moved elsewhere), and its figures' sources not since it was last drawn;
+- replot: only the sources of its tables' text and figures changed since it was drawn
+  (`python -m experiments.replot FOLDER` redraws it and records the commit it drew with);
 - stale: a source of its numbers changed (the files are listed), it ran on uncommitted code ("-dirty"), its
   commit is not in this history, or a result whose trained runs it reads is stale.
 --check exits 1 when any is not current; --index writes ROOT/README.md, the index of every result (what it
@@ -15,6 +17,7 @@ answers, the command, commit, seeds, wall time, state). ROOT defaults to docs/re
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import subprocess
 from pathlib import Path
@@ -37,17 +40,60 @@ class Result:
         return str(self.results.get("commit", ""))
 
 
-def _git(*args) -> subprocess.CompletedProcess:
-    return subprocess.run(["git", *args], cwd=common.ROOT, capture_output=True, text=True)
+def _git(*args, root=None) -> subprocess.CompletedProcess:
+    return subprocess.run(["git", *args], cwd=root or common.ROOT, capture_output=True, text=True)
 
 
-def changed_since(commit: str, paths) -> list[str] | None:
-    """Files under `paths` that differ between `commit` and HEAD (committed changes only), or None when the
-    commit is not in this repository's history."""
-    if _git("cat-file", "-e", f"{commit}^{{commit}}").returncode != 0:
+def _under(path: str, paths) -> bool:
+    return any(path == p or path.startswith(p.rstrip("/") + "/") for p in paths)
+
+
+def _code(text: str | None, path: str):
+    """A Python file's code without its docstrings (ast.dump: comments and layout are gone already), or None
+    for another file or one that does not parse: then only identical text counts as the same."""
+    if text is None or not path.endswith(".py"):
         return None
-    r = _git("diff", "--name-only", commit, "HEAD", "--", *paths)
-    return [line for line in r.stdout.splitlines() if line]
+    try:
+        tree = ast.parse(text)
+    except SyntaxError:
+        return None
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if isinstance(body, list) and body and isinstance(body[0], ast.Expr) \
+                and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str):
+            node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree)
+
+
+def _same_code(commit: str, old: str, new: str, root=None) -> bool:
+    """Whether `old` at commit and `new` at HEAD hold the same code (text, or a Python file's docstring-free
+    syntax tree)."""
+    a, b = (_git("show", f"{rev}:{p}", root=root) for rev, p in ((commit, old), ("HEAD", new)))
+    if a.returncode or b.returncode:
+        return False
+    return a.stdout == b.stdout or (_code(a.stdout, old) is not None and _code(a.stdout, old) == _code(b.stdout, new))
+
+
+def changed_since(commit: str, paths, root=None) -> list[str] | None:
+    """Files under `paths` whose code differs between `commit` and HEAD (committed changes only), or None when
+    the commit is not in this repository's history. A change of docstrings, comments or layout only is no change
+    of numbers; a file moved out of `paths` (git's rename detection) is not one either: what used it changed
+    too, and is named."""
+    if _git("cat-file", "-e", f"{commit}^{{commit}}", root=root).returncode != 0:
+        return None
+    r = _git("diff", "--name-status", "-M", commit, "HEAD", root=root)
+    out = []
+    for line in r.stdout.splitlines():
+        kind, *names = line.split("\t")
+        old, new = names[0], names[-1]
+        if kind[0] == "R" and not _under(new, paths):
+            continue  # moved out: the new place is someone else's source
+        if not (_under(new, paths) or _under(old, paths)):
+            continue
+        if kind[0] in "MR" and _same_code(commit, old, new, root):
+            continue
+        out.append(new)
+    return out
 
 
 def find(root) -> list[Path]:
@@ -76,7 +122,9 @@ def check(folder) -> Result:
     elif numbers:
         r.state, r.why = "stale", numbers
     else:
-        figures = changed_since(commit, r.experiment.figures) if r.experiment.figures else []
+        drawn = str(results.get("replotted", commit))  # experiments.replot records the commit it drew with
+        drawn = commit if drawn.endswith("-dirty") else drawn
+        figures = changed_since(drawn, r.experiment.figures) if r.experiment.figures else []
         if figures:
             r.state, r.why = "replot", figures
     return r

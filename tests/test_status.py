@@ -125,3 +125,58 @@ def test_an_only_call_keeps_the_other_experiments_records(tmp_path):
                                             "experiments": {"sweep_loss": {"wall_s": 5.0, "commit": "b" * 40}}})
     assert set(merged["experiments"]) == {"ablation", "sweep_loss"} and merged["commit"] == "b" * 40
     assert merged["experiments"]["ablation"]["commit"] == "a" * 40  # each entry keeps the commit it ran
+
+
+def _commit(repo: Path, files: dict, message: str) -> str:
+    for name, text in files.items():
+        path = repo / name
+        if text is None:
+            subprocess.run(["git", "rm", "-q", name], cwd=repo, check=True)
+            continue
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+        subprocess.run(["git", "add", name], cwd=repo, check=True)
+    subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", message], cwd=repo, check=True)
+    return subprocess.run(["git", "rev-parse", "HEAD"], cwd=repo, capture_output=True, text=True).stdout.strip()
+
+
+def test_docstrings_comments_and_moves_out_are_no_change_of_numbers(tmp_path):
+    """Only code counts: a docstring, comment or layout change leaves a result current, a file moved out of
+    its sources (the importer's change is what is named) too; a code change or a deletion does not."""
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    subprocess.run(["git", "init", "-q"], cwd=repo, check=True)
+    code = '"""A module."""\n\n\ndef f(x):\n    """Twice x."""\n    return 2 * x\n'
+    drawing = "def draw():\n    return 1\n" + "# filler so git sees the move as a rename\n" * 8
+    first = _commit(repo, {"lib/a.py": code, "lib/draw.py": drawing, "lib/data.txt": "1\n"}, "first")
+    _commit(repo, {"lib/a.py": '"""A module, said better."""\n\n\ndef f(x):  # why\n    """Two x."""\n\n'
+                                '    return 2 * x\n'}, "words")
+    assert status.changed_since(first, ["lib"], root=repo) == []
+    (repo / "lib" / "draw.py").rename(repo / "lib" / "moved.py")
+    subprocess.run(["git", "add", "-A"], cwd=repo, check=True)
+    _commit(repo, {}, "move within")
+    assert status.changed_since(first, ["lib"], root=repo) == []  # a rename inside with the same code
+    subprocess.run(["git", "mv", "lib/moved.py", "figures.py"], cwd=repo, check=True)
+    _commit(repo, {}, "move out")
+    assert status.changed_since(first, ["lib"], root=repo) == []
+    _commit(repo, {"lib/a.py": '"""A module."""\n\n\ndef f(x):\n    return 3 * x\n'}, "code")
+    assert status.changed_since(first, ["lib"], root=repo) == ["lib/a.py"]
+    _commit(repo, {"lib/data.txt": None}, "delete")
+    assert sorted(status.changed_since(first, ["lib"], root=repo)) == ["lib/a.py", "lib/data.txt"]
+    assert status.changed_since("0" * 40, ["lib"], root=repo) is None
+
+
+def test_a_replotted_result_is_current_until_its_figures_change_again(tmp_path, monkeypatch):
+    """experiments.replot records the commit it drew with; status compares the figures' sources from there."""
+    asked = []
+
+    def changed(commit, paths):
+        asked.append(commit)
+        return ["experiments/tables.py"] if "experiments/tables.py" in paths and commit == "old" else []
+
+    monkeypatch.setattr(status, "changed_since", changed)
+    _result(tmp_path / "a" / "sweep_loss", commit="old", per_beta={})
+    _result(tmp_path / "b" / "sweep_loss", commit="old", per_beta={}, replotted="new")
+    _result(tmp_path / "c" / "sweep_loss", commit="old", per_beta={}, replotted="new-dirty")
+    rows = {r.folder.parent.name: r.state for r in status.check_all(tmp_path)}
+    assert rows == {"a": "replot", "b": "current", "c": "replot"}
