@@ -18,7 +18,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from experiments import common, kernel, tables, training_report
+from experiments import common, kernel, tables, training_figures, training_report
 from ffjax import registry
 
 
@@ -79,7 +79,7 @@ def run(cfg: dict, methods, n_seeds: int, out, data_dir=None, force: bool = Fals
     results["training"] = training_report.summarize(checkpoints, data_root)
     results["findings"] = tables.findings(results)
     tables.write_all(results, out)
-    training_report.write(results["training"], out, cfg["preset"], seeds, results["commit"])
+    training_figures.write(results["training"], out, cfg["preset"], seeds, results["commit"])
     return results
 
 

@@ -52,12 +52,12 @@ class Experiment:
 
 
 def _replot_ablation(results: dict, folder) -> None:
-    from experiments import tables, training_report
+    from experiments import tables, training_figures
 
     results["findings"] = tables.findings(results)  # the verdicts too: written by the code of the run's day
     tables.write_all(results, folder)
     if results.get("training"):
-        training_report.write(results["training"], folder, results["preset"], results.get("seeds", []),
+        training_figures.write(results["training"], folder, results["preset"], results.get("seeds", []),
                               results.get("commit", "?"))
 
 
@@ -86,9 +86,9 @@ def _replot_bench(results: dict, folder) -> None:
 
 
 def _replot_downstream(results: dict, folder) -> None:
-    from ffjax.tasks import report
+    from experiments import downstream_report
 
-    report.plots(results, folder, results.get("push_trace"))  # figures only: the tables come with the run
+    downstream_report.draw(results, folder)
 
 
 def _replot_probe(kind: str) -> Callable:
@@ -139,7 +139,7 @@ EXPERIMENTS = (
                "the training report", _has("table1"), _replot_ablation,
                args=lambda preset, work: ["--preset", preset, *_seeds(preset)],
                numbers=("experiments/ablation.py", "experiments/training_report.py"),
-               figures=("experiments/tables.py",)),
+               figures=("experiments/tables.py", "experiments/training_figures.py", "experiments/style.py")),
     Experiment("sweep_loss", "experiments.sweep_loss",
                "Does the depth head help? DINO's error against the depth-loss weight beta/alpha",
                _has("per_beta"), _replot_sweep, args=_trains_seeds,
@@ -155,7 +155,8 @@ EXPERIMENTS = (
     Experiment("downstream", "experiments.downstream",
                "Weighing by pushing (Table IV) and grasping with the trained models in the loop",
                _has("pushing", "grasping"), _replot_downstream, args=_reads_ablation, reuses="ablation",
-               numbers=("experiments/downstream.py",)),
+               numbers=("experiments/downstream.py",),
+               figures=("experiments/downstream_report.py", "experiments/style.py")),
     Experiment("bench-sim", "experiments.bench",
                "The simulator's speed: batched solves against the numpy reference, their agreement, a dataset's time",
                lambda r: r.get("experiment") == "bench" and "sim_speed" in r, _replot_bench,

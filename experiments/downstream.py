@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from experiments import common
-from ffjax.tasks import grasping, pushing, report
+from experiments import common, downstream_report
+from ffjax.tasks import grasping, pushing
 
 # Scene sizes per preset. The camera runs at 25 fps; presets keep every k-th frame (fps below) and the
 # sweep's longest push is simulated once, shorter durations are its prefixes (the reference is tared at
@@ -71,7 +71,7 @@ def main(argv=None) -> dict:
     checkpoints, source = find_checkpoints(cfg, args, out)
     timings = {"checkpoints_s": round(time.perf_counter() - t0, 1)}
     results = run(cfg, checkpoints, out, progress=not args.quiet, timings=timings, source=source)
-    print(report.console_summary(results))
+    print(downstream_report.console_summary(results))
     print(f"\nwrote {out}/results.json, table4.md, grasping.md, CSVs and plots")
     return results
 
@@ -158,7 +158,7 @@ def run(
     trace = push_trace(results, push_cfg, sensors, size)
     timings["plot_trace_s"] = round(time.perf_counter() - t, 1)
     timings["total_s"] = round(sum(v for k, v in timings.items() if k != "total_s"), 1)
-    report.write_all(results, out, push_trace=trace)
+    downstream_report.write_all(results, out, push_trace=trace)
     return results
 
 

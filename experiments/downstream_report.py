@@ -1,4 +1,5 @@
-"""Tables (markdown laid out like the paper's, CSV) and plots of the downstream results."""
+"""Tables (markdown laid out like the paper's, CSV) and plots of the downstream results (experiments.downstream):
+drawn from its results.json only, so `python -m experiments.replot` redraws all of them."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ffjax import registry, results
+from experiments import common, style
 from ffjax.tasks import grasping, pushing
 
 PERFECT = "perfect"
@@ -26,11 +27,9 @@ EXTRA = (
 )
 
 
-def _paper_name(method: str) -> str:
-    try:
-        return registry.get(method).paper_name
-    except KeyError:
-        return method
+def _name(method: str) -> str:
+    """The name people read; the true force as the estimate is "perfect sensor"."""
+    return "perfect sensor" if method == PERFECT else style.name(method)
 
 
 def _v(ms) -> float:
@@ -39,10 +38,10 @@ def _v(ms) -> float:
 
 def stamp(fig, res: dict) -> None:
     """The figure's provenance in its corner (preset, the checkpoints' training seeds, commit): see
-    ffjax.results.stamp."""
+    ffjax.common.stamp."""
     seeds = sorted({int(m.group(1)) for runs in res.get("checkpoints", {}).values() for r in runs
                     if (m := re.search(r"seed(\d+)$", str(r)))})
-    results.stamp(fig, res.get("preset", "?"), seeds or ["?"], res.get("commit", "?"))
+    common.stamp(fig, res.get("preset", "?"), seeds or ["?"], res.get("commit", "?"))
 
 
 def table4_md(res: dict) -> str:
@@ -51,21 +50,21 @@ def table4_md(res: dict) -> str:
     objs = pushing.OBJECTS
     head = ["weight [kg]", *[o.label for o in objs]]
     tab = push["table"][m]
-    rows = [[label, *[f"{results.fmt(tab[o.name][k], d)} ({o.paper[k]:g})" for o in objs]] for k, label, d in ROWS]
-    extra = [[label, *[results.fmt(tab[o.name][k], d) for o in objs]] for k, label, d in EXTRA]
+    rows = [[label, *[f"{common.fmt(tab[o.name][k], d)} ({o.paper[k]:g})" for o in objs]] for k, label, d in ROWS]
+    extra = [[label, *[common.fmt(tab[o.name][k], d) for o in objs]] for k, label, d in EXTRA]
     perf = push["table"][PERFECT]
     extra.append(
-        ["Weight error, perfect tactile sensor [kg]", *[results.fmt(perf[o.name]["weight_error"], 3) for o in objs]]
+        ["Weight error, perfect tactile sensor [kg]", *[common.fmt(perf[o.name]["weight_error"], 3) for o in objs]]
     )
     out = [
-        f"# Table IV: weighing by pushing ({res['preset']} preset, {m}; the paper's values in brackets)\n",
+        f"# Table IV: weighing by pushing ({res['preset']} preset, {_name(m)}; the paper's values in brackets)\n",
         f"{res['push_config']['pushes']} pushes of {push['duration_s']:g} s per object at "
         f"{res['push_config']['fps']:g} fps (camera 25 fps), averaged over the constant-velocity phase; "
         "mu fitted from the reference sensor with the known mass (mu = f_ref / m g), "
         "weight = f_est / (mu g).\n",
-        results.md_table(head, rows),
+        common.md_table(head, rows),
         "\nDiagnostics (not in the paper):\n",
-        results.md_table(head, extra),
+        common.md_table(head, extra),
     ]
     # every method
     methods = [k for k in push["table"] if k != PERFECT] + [PERFECT]
@@ -74,29 +73,29 @@ def table4_md(res: dict) -> str:
         t = push["table"][meth]
         mrows.append(
             [
-                meth,
+                _name(meth),
                 *[
-                    f"{results.fmt(t[o.name]['force_error'], 2)} / {results.fmt(t[o.name]['weight_error'], 3)}"
+                    f"{common.fmt(t[o.name]['force_error'], 2)} / {common.fmt(t[o.name]['weight_error'], 3)}"
                     for o in objs
                 ],
-                results.fmt(_pct(t["mean"]["weight_error_rel"]), 1),
+                common.fmt(_pct(t["mean"]["weight_error_rel"]), 1),
             ]
         )
     out += [
         "\n## Every method: force error [N] / weight error [kg]\n",
-        "(`perfect` = the tactile estimate is the true force: what remains is the drifting reference "
+        "(perfect sensor = the tactile estimate is the true force: what remains is the drifting reference "
         "and the table.)\n",
-        results.md_table(["method", *[o.label for o in objs], "mean weight error %"], mrows),
+        common.md_table(["method", *[o.label for o in objs], "mean weight error %"], mrows),
     ]
     # duration sweep
     durs = push["durations"]
     drows = [
-        [meth, *[results.fmt(_pct(push["sweep"][meth][str(T)]["mean"]["weight_error_rel"]), 1) for T in durs]]
+        [_name(meth), *[common.fmt(_pct(push["sweep"][meth][str(T)]["mean"]["weight_error_rel"]), 1) for T in durs]]
         for meth in methods
     ]
     out += [
         "\n## Push duration: mean weight error % over the four objects\n",
-        results.md_table(["method", *[f"{T:g} s" for T in durs]], drows),
+        common.md_table(["method", *[f"{T:g} s" for T in durs]], drows),
     ]
     return "".join(out)
 
@@ -110,7 +109,7 @@ def grasping_md(res: dict) -> str:
     m = res["main_method"]
     cup = res["cup"]
     out = [
-        f"# Grasping to a target force ({res['preset']} preset, {m})\n\n",
+        f"# Grasping to a target force ({res['preset']} preset, {_name(m)})\n\n",
         f"Plastic cup rim: k = {cup['stiffness_n_per_mm']:.3f} N/mm "
         "(thin-ring model, see ffjax/tasks/grasping.py), "
         f"diameter {cup['diameter_mm']:g} mm; gripper step {res['gripper']['step_mm']:g} mm; "
@@ -124,17 +123,17 @@ def grasping_md(res: dict) -> str:
         rows.append(
             [
                 f"{T:g}",
-                f"{results.fmt(t['deformation_pct'], 2)} ({p['true']})",
-                f"{results.fmt(e['deformation_pct'], 2)} ({p['est']})",
-                results.fmt(e["abs_deformation_error_pct"], 2),
-                results.fmt(t["overshoot_n"], 3),
-                results.fmt(t["step_increment_n"], 3),
-                results.fmt(e["overshoot_n"], 2),
+                f"{common.fmt(t['deformation_pct'], 2)} ({p['true']})",
+                f"{common.fmt(e['deformation_pct'], 2)} ({p['est']})",
+                common.fmt(e["abs_deformation_error_pct"], 2),
+                common.fmt(t["overshoot_n"], 3),
+                common.fmt(t["step_increment_n"], 3),
+                common.fmt(e["overshoot_n"], 2),
                 f"{100 * e['reached']:.0f}%",
             ]
         )
     out.append(
-        results.md_table(
+        common.md_table(
             [
                 "target [N]",
                 "deformation % true force (paper)",
@@ -159,12 +158,12 @@ def grasping_md(res: dict) -> str:
                 f"{f.firm_n:.2f}",
                 f"{100 * t['gentle']['success']:.0f}% / {100 * e['gentle']['success']:.0f}%",
                 f"{100 * t['firm']['success']:.0f}% / {100 * e['firm']['success']:.0f}%",
-                results.fmt(e["gentle"]["force"], 2),
-                results.fmt(e["firm"]["force"], 2),
+                common.fmt(e["gentle"]["force"], 2),
+                common.fmt(e["firm"]["force"], 2),
             ]
         )
     out.append(
-        results.md_table(
+        common.md_table(
             [
                 "fruit",
                 "gentle [N]",
@@ -185,14 +184,14 @@ def grasping_md(res: dict) -> str:
         succ = np.mean([fr[f][mode]["success"] for f in fr for mode in fr[f]])
         mrows.append(
             [
-                meth,
-                *[results.fmt(cu[str(T)]["abs_deformation_error_pct"], 2) for T in cup["targets"]],
-                *[results.fmt(cu[str(T)]["overshoot_n"], 2) for T in cup["targets"]],
+                _name(meth),
+                *[common.fmt(cu[str(T)]["abs_deformation_error_pct"], 2) for T in cup["targets"]],
+                *[common.fmt(cu[str(T)]["overshoot_n"], 2) for T in cup["targets"]],
                 f"{100 * succ:.0f}%",
             ]
         )
     out.append(
-        results.md_table(
+        common.md_table(
             [
                 "method",
                 *[f"abs def. error % @{T:g} N" for T in cup["targets"]],
@@ -223,7 +222,7 @@ def write_csvs(res: dict, out: Path) -> None:
         for m in push["table"]
         for o in pushing.OBJECTS
     ]
-    results.write_csv(out / "table4.csv", ["method", "object", "mass", *fields], rows)
+    common.write_csv(out / "table4.csv", ["method", "object", "mass", *fields], rows)
     rows = [
         [
             m,
@@ -236,7 +235,7 @@ def write_csvs(res: dict, out: Path) -> None:
         for T in push["durations"]
         for o in pushing.OBJECTS
     ]
-    results.write_csv(
+    common.write_csv(
         out / "push_duration.csv", ["method", "duration_s", "object", "weight_error", "force_error"], rows
     )
     g = res["grasping"]
@@ -258,7 +257,7 @@ def write_csvs(res: dict, out: Path) -> None:
         for T, rs in c_.items()
         for k, r in enumerate(rs)
     ]
-    results.write_csv(
+    common.write_csv(
         out / "grasp_cup.csv",
         [
             "method",
@@ -282,7 +281,7 @@ def write_csvs(res: dict, out: Path) -> None:
         for mode, rs in modes.items()
         for k, r in enumerate(rs)
     ]
-    results.write_csv(
+    common.write_csv(
         out / "grasp_fruits.csv",
         ["method", "checkpoint", "fruit", "mode", "trial", "stop_step", "force", "success"],
         rows,
@@ -308,37 +307,47 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
                 label="constant velocity",
             )
         ax.plot(tr["t"], tr["true"], "k-", lw=1.2, label="true push force")
-        ax.plot(tr["t"], tr["reference"], "C1-", lw=0.8, label="reference sensor (drifting)")
-        ax.plot(tr["t"], tr["estimate"], "C0.-", lw=0.8, ms=3, label=f"estimate ({_paper_name(tr['method'])})")
+        ax.plot(tr["t"], tr["reference"], "-", color="0.55", lw=0.8, label="reference sensor (drifting)")
+        ax.plot(tr["t"], tr["estimate"], ".-", color=style.colour(tr["method"]), lw=0.8, ms=3,
+                label=f"estimate ({_name(tr['method'])})")
         t_end, window = float(np.asarray(tr["t"])[-1]), float(res["pushing"]["duration_s"])
         if window < t_end:  # the sweep's longest push is simulated; Table IV reads its first `window` seconds
             ax.axvline(window, color="0.4", ls=":", lw=1, label=f"Table IV window ends ({window:g} s)")
         ax.set(
             xlabel="time [s]",
             ylabel="Fz = push force [N]",
-            title=f"one push of the {tr['object']} weight ({t_end + float(np.diff(tr['t'][:2])[0]):.0f} s simulated)",
+            title=f"One push of {tr['object']} ({t_end + float(np.diff(tr['t'][:2])[0]):.0f} s simulated, one "
+                  f"{_name(tr['method'])} checkpoint)",
         )
-        fig.legend(fontsize=7, loc="outside right upper")
+        fig.legend(fontsize=7, loc="outside right center")
         stamp(fig, res)
         fig.savefig(out / "push_force.png", dpi=120)
         plt.close(fig)
         made.append("push_force.png")
     push = res["pushing"]
     fig, ax = plt.subplots(figsize=(9, 3.8), layout="constrained")
-    seen = {}
-    for k, m in enumerate(push["sweep"]):
-        y = [100 * push["sweep"][m][str(T)]["mean"]["weight_error_rel"]["mean"] for T in push["durations"]]
+    seen: dict = {}
+    durations = np.asarray(push["durations"], float)
+    methods = [m for m in push["sweep"] if m != PERFECT]
+    for m in push["sweep"]:
+        cells = [push["sweep"][m][str(T)]["mean"]["weight_error_rel"] for T in push["durations"]]
+        y = [100 * c["mean"] for c in cells]
         if m == PERFECT:
-            ax.plot(push["durations"], y, "k--", label="true force as the estimate (the method's own error)")
+            ax.plot(durations, y, "k:", label="perfect sensor (the true force as the estimate)")
             continue
-        key = tuple(round(v, 6) for v in y)  # equal curves (DINO_F R, DINO_F RD) get their own marker and a note
-        label = _paper_name(m) + (f" (= {_paper_name(seen[key])})" if key in seen else "")
-        seen.setdefault(key, m)
-        ax.plot(push["durations"], y, marker="osD^v"[k % 5], ls=("-", "--", ":", "-.")[k % 4],
-                mfc="none" if k % 2 else None, label=label)
-    ax.set(xlabel="push duration [s]", ylabel="mean weight error [%]",
-           title=f"Weighing error against push duration ({res.get('preset', '?')} models)")
-    fig.legend(fontsize=7, loc="outside right upper")
+        key = tuple(round(v, 6) for v in y)  # equal curves (DINO_F R, DINO_F RD) are dashed, hollow, and say so
+        twin = seen.setdefault(key, m)
+        n = max(c.get("n", 1) for c in cells)
+        label = _name(m) + (f" (= {_name(twin)})" if twin != m else "") + (f", {n} seeds" if n > 1 else ", 1 seed")
+        # side by side at each duration, so the error bars (± std over the checkpoints' seeds) do not overlap
+        shift = durations * 0.025 * (methods.index(m) - (len(methods) - 1) / 2)
+        ax.errorbar(durations + shift, y, yerr=[100 * c.get("std", 0.0) for c in cells] if n > 1 else None,
+                    color=style.colour(m), marker=style.marker(m), ls="--" if twin != m else "-", capsize=2.5,
+                    mfc="white" if twin != m else style.colour(m), label=label)
+    ax.set(xlabel="push duration [s]", ylabel="mean weight error, four objects [%]")
+    fig.suptitle(f"Weighing error against push duration ({res.get('preset', '?')} models; mean ± std over seeds)",
+                 fontsize=11)
+    fig.legend(fontsize=7, loc="outside right center")
     stamp(fig, res)
     fig.savefig(out / "push_duration.png", dpi=120)
     plt.close(fig)
@@ -348,13 +357,17 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
         fig, (a1, a2) = plt.subplots(2, 1, figsize=(8.5, 5), sharex=True, layout="constrained")
         a1.plot(tr["steps"], tr["true"], "k.-", label="true force")
         names = [f"{n}-gel{g}" for n, g in res["gripper"]["sensors"]]
-        a1.plot(tr["steps"], tr["est_a"], "C0.-", label=f"estimate, jaw A ({names[0]})")
-        a1.plot(tr["steps"], tr["est_b"], "C2.-", label=f"estimate, jaw B ({names[1]})")
-        a1.axhline(tr["target"], color="r", lw=0.8, label="target")
+        colour = style.colour(res["main_method"])
+        a1.plot(tr["steps"], tr["est_a"], "o-", color=colour, ms=3, label=f"estimate, jaw A ({names[0]})")
+        a1.plot(tr["steps"], tr["est_b"], "s--", color=colour, ms=3, mfc="white",
+                label=f"estimate, jaw B ({names[1]})")
+        a1.axhline(tr["target"], color="0.3", ls="-.", lw=0.9, label="target")
         a1.axvline(tr["stop_true"], color="k", ls=":", lw=0.8)
-        a1.axvline(tr["stop_est"], color="C0", ls=":", lw=0.8)
-        a1.set(ylabel="Fz [N]", title="closing on the cup rim (dotted: stop, true / estimated control)")
-        fig.legend(fontsize=7, loc="outside right upper")
+        a1.axvline(tr["stop_est"], color=colour, ls=":", lw=0.8)
+        a1.set(ylabel="Fz [N]")
+        fig.suptitle(f"Closing on the cup rim, one {_name(res['main_method'])} checkpoint (dotted: where control "
+                     "by the true / the estimated force stops)", fontsize=10)
+        fig.legend(fontsize=7, loc="outside right center")
         a2.plot(tr["steps"], tr["deformation_pct"], "k.-")
         a2.set(xlabel="gripper step", ylabel="deformation [%]")
         stamp(fig, res)
@@ -364,24 +377,32 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
     return made
 
 
-def write_all(res: dict, out, push_trace: dict | None = None) -> None:
+def draw(res: dict, out) -> list[str]:
+    """Every table, CSV and figure from a results.json's content (`python -m experiments.replot` too); returns
+    the figures' names."""
     out = Path(out)
-    if push_trace is not None:  # kept, so `python -m experiments.replot` can redraw push_force.png
+    common.write_text(out / "table4.md", table4_md(res))
+    common.write_text(out / "grasping.md", grasping_md(res))
+    write_csvs(res, out)
+    return plots(res, out, res.get("push_trace"))
+
+
+def write_all(res: dict, out, push_trace: dict | None = None) -> None:
+    """results.json (with the push trace, so a replot can redraw push_force.png), then everything draw writes."""
+    out = Path(out)
+    if push_trace is not None:
         res["push_trace"] = {k: np.asarray(v).tolist() if isinstance(v, (list, np.ndarray)) else v
                              for k, v in push_trace.items()}
-    results.write_json(out / "results.json", res)
-    results.write_text(out / "table4.md", table4_md(res))
-    results.write_text(out / "grasping.md", grasping_md(res))
-    write_csvs(res, out)
-    res["plots"] = plots(res, out, push_trace)
-    results.write_json(out / "results.json", res)
+    common.write_json(out / "results.json", res)
+    res["plots"] = draw(res, out)
+    common.write_json(out / "results.json", res)
 
 
 def console_summary(res: dict) -> str:
     m = res["main_method"]
     t = res["pushing"]["table"][m]
     lines = [
-        f"weighing by pushing ({m}): "
+        f"weighing by pushing ({_name(m)}): "
         + ", ".join(
             f"{o.label} f_est {t[o.name]['force_est']['mean']:.2f} N "
             f"vs ref {t[o.name]['force_ref']['mean']:.2f} N, "

@@ -404,8 +404,10 @@ def plot(results: dict, path: Path) -> Path:
         xy = _xy(rows, y, x)
         on_front = set(pareto_front(xy, (x_min, True)))
         for r, (a, b) in zip(rows, xy):
-            ax.scatter(a, b, color=colours[r["method"]], marker=markers.get(r["size"], "o"), s=45, zorder=3)
-            if r[y].get("n", 1) >= 2:  # the seeds' spread of the error; none drawn for one seed
+            multi = r[y].get("n", 1) >= 2
+            ax.scatter(a, b, edgecolors=colours[r["method"]], facecolors=colours[r["method"]] if multi else "white",
+                       marker=markers.get(r["size"], "o"), s=45, lw=1.3, zorder=3)  # hollow: one seed
+            if multi:  # the seeds' spread of the error; none drawn for one seed
                 ax.errorbar(a, b, yerr=r[y]["std"], color=colours[r["method"]], lw=1, capsize=0, zorder=2)
         front = sorted((xy[i] for i in on_front), key=lambda p: p[0])
         if front:
@@ -432,12 +434,16 @@ def plot(results: dict, path: Path) -> Path:
     handles.append(plt.Line2D([], [], color="k", marker="o", mfc="none", ls="--", label="Pareto front"))
     if any(r[y]["n"] >= 2 for r in rows for y in ("table1", "table2") if "n" in r[y]):
         handles.append(plt.Line2D([], [], color="grey", lw=1, label="error ± std over seeds"))
-    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 6), fontsize=8)
+    if any(r[y].get("n", 1) < 2 for r in rows for y in ("table1", "table2")):
+        handles.append(plt.Line2D([], [], color="grey", marker="o", mfc="white", ls="", label="hollow: 1 seed"))
+    # the legend sits above the bottom strip, which holds the provenance stamp
+    fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.5, 0.025), ncol=min(len(handles), 6),
+               fontsize=8)
     fig.suptitle(f"Speed vs accuracy — {results['preset']} preset, commit {_short(results['commit'])}, "
                  f"{results['machine']['cpu_model']} (load {_la(results['machine']['loadavg_before'])})", fontsize=10)
     seeds = sorted({int(k) for r in rows for k in r.get("seeds", results.get("seeds", [0]))})
     common.stamp(fig, results["preset"], seeds, results.get("commit", "?"))
-    fig.tight_layout(rect=(0, 0.06, 1, 0.96))
+    fig.tight_layout(rect=(0, 0.085, 1, 0.96))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -241,30 +241,36 @@ def plot(results: dict, path: Path) -> Path:
         multi = len(v["per_seed"]) >= 2
         ax.errorbar([x], [v[m]["mean"]], yerr=[v[m]["std"]] if multi else None, fmt=marker, color=color,
                     mfc=color if multi else "white", capsize=3, zorder=3)
-        ax.scatter([x] * len(v["per_seed"]), [s[m] for s in v["per_seed"]], s=10, color="k", alpha=0.5, zorder=4)
+        if multi:  # a one-seed cell's hollow marker is its seed: a dot on it would fill it in
+            ax.scatter([x] * len(v["per_seed"]), [s[m] for s in v["per_seed"]], s=10, color="k", alpha=0.5,
+                       zorder=4)
+
+    no_head_method = zero["method"] if zero else "dino_r"  # the beta = 0 cell is a registry method (DINO R)
+    head, no_head = style.colour(results["base"]), style.colour(no_head_method)
 
     for i, m in enumerate(shown):
         a0, a1 = axes[0, 2 * i], axes[0, 2 * i + 1]
         if zero:
-            mean_dot(a0, 0, zero, m, "s", "C3")
+            mean_dot(a0, 0, zero, m, style.marker(no_head_method), no_head)
         a0.set_xticks([0])
         a0.set_xticklabels(["0\n(no head)"])
         a0.set_xlim(-1, 1)
-        a0.set_ylabel(f"{METRICS[m]}\nnormalized L1 error (%)", fontsize=8)
+        a0.set_ylabel("normalized L1 error (%)", fontsize=8)  # the metric is the panel's title
         if pos:
             x = [v["ratio"] for v in pos]
-            a1.plot(x, [v[m]["mean"] for v in pos], "-", color="C0", zorder=2)
+            a1.plot(x, [v[m]["mean"] for v in pos], "-", color=head, zorder=2)
             for v in pos:
-                mean_dot(a1, v["ratio"], v, m, "o", "C0")
+                mean_dot(a1, v["ratio"], v, m, style.marker(results["base"]), head)
             a1.set_xscale("log")
             # ticks at the swept ratios: a log axis over 0.1-10 otherwise labels only 10^0 and 10^1
             a1.xaxis.set_major_locator(FixedLocator(x))
             a1.xaxis.set_major_formatter(FixedFormatter([f"{r:g}" for r in x]))
             a1.xaxis.set_minor_locator(NullLocator())
             if zero:
-                a1.axhline(zero[m]["mean"], color="C3", ls=":", lw=1, label="beta = 0")
-            a1.plot([], [], "o", color="C0", label="mean ± std (2+ seeds)")
-            a1.plot([], [], "o", color="C0", mfc="white", label="1 seed")
+                a1.axhline(zero[m]["mean"], color=no_head, ls=":", lw=1,
+                           label=f"beta = 0 ({style.name(no_head_method)})")
+            a1.plot([], [], style.marker(results["base"]), color=head, label="mean ± std (2+ seeds)")
+            a1.plot([], [], style.marker(results["base"]), color=head, mfc="white", label="1 seed")
             a1.scatter([], [], s=10, color="k", alpha=0.5, label="each seed")
             a1.legend(fontsize=7, loc="best")
         a1.set_xlabel("beta / alpha (depth-loss weight)")

@@ -1,6 +1,6 @@
 """Writing results: markdown tables, mean ± std, atomic JSON / CSV / text files, a figure's provenance stamp.
 
-Shared by the library's reports (ffjax.tasks.report) and the experiments (through experiments.common).
+Used by the experiments, through experiments.common.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ import pytest
 from _tiny_data import write_tiny_split
 
 import configs
-from experiments import training_report
+from experiments import training_figures, training_report
 from ffjax import calibrate, models, registry, train
 from ffjax.models import heads
 
@@ -141,7 +141,7 @@ def test_training_report_compares_with_the_constant_level(tmp_path):
     r = report["methods"]["dino_rd"]
     assert r["val_nl1"]["mean"] == 9.0 and r["steps"] == 20 and r["mae_n"] == [0.18, 0.225, 0.9]
     assert np.isclose(r["shear_vs_constant"][0], round(0.18 / const["mae_n"][0], 3))
-    training_report.write(report, tmp_path / "out", "smoke")
+    training_figures.write(report, tmp_path / "out", "smoke")
     text = (tmp_path / "out" / "training.md").read_text()
     assert "constant (training median)" in text and "DINO RD" in text
     curves = (tmp_path / "out" / "training_curves.csv").read_text().splitlines()

@@ -37,11 +37,16 @@ def test_replot_rewrites_verdicts_written_by_older_code(tmp_path):
     assert "The frozen backbone (DINO_F R) is worst: tie, not resolved" in table2
 
 
-def test_replot_redraws_the_downstream_figures_with_the_push_trace(tmp_path):
-    shutil.copy(PUBLISHED / "downstream" / "results.json", tmp_path / "results.json")
+def test_replot_redraws_the_downstream_tables_and_figures_and_records_its_commit(tmp_path):
+    src = PUBLISHED / "downstream"
+    shutil.copy(src / "results.json", tmp_path / "results.json")
     assert replot.replot(tmp_path) == "downstream"
+    for name in ("table4.md", "grasping.md", "table4.csv", "push_duration.csv", "grasp_cup.csv"):
+        assert (tmp_path / name).read_text() == (src / name).read_text(), name
     for name in ("push_force.png", "push_duration.png", "grasp_steps.png"):
         assert (tmp_path / name).stat().st_size > 10_000, name
+    before, after = (json.loads(p.read_text()) for p in (src / "results.json", tmp_path / "results.json"))
+    assert after.pop("replotted") and after == {k: v for k, v in before.items() if k != "replotted"}
 
 
 @pytest.mark.parametrize("kind", ["object_probe", "contact_probe"])
