@@ -18,7 +18,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from experiments import common, kernel, tables, training_figures, training_report
+from experiments import aggregate, common, kernel, tables, training_figures, training_report
 from ffjax import registry
 
 
@@ -70,7 +70,7 @@ def run(cfg: dict, methods, n_seeds: int, out, data_dir=None, force: bool = Fals
         checkpoints.setdefault(spec.name, []).append(str(r.dir))
     timings.update(train_s=train_s, eval_s=eval_s, total_s=round(time.perf_counter() - t0, 1))
 
-    results = tables.aggregate(per_run)
+    results = aggregate.aggregate(per_run)
     results.update(preset=cfg["preset"], commit=common.git_commit(), machine=common.machine(), seeds=seeds,
                    methods=methods,
                    timings=timings, checkpoints=checkpoints, data=str(data_root), config=cfg,

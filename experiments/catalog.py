@@ -9,9 +9,10 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 
-# what every experiment's numbers come from: the library, the presets and the experiments' shared machinery
-_CORE = ("ffjax", "configs", "pyproject.toml", "experiments/common.py", "experiments/kernel.py",
-         "experiments/paper_numbers.py")
+# what every experiment's numbers come from beside the code its command runs: the presets (read by name) and the
+# dependencies; for a command outside the import graph (tests/), the whole library and shared machinery
+_CORE = ("configs", "pyproject.toml")
+_WHOLE = ("ffjax", "experiments/common.py", "experiments/kernel.py", "experiments/paper_numbers.py")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -22,8 +23,9 @@ class Experiment:
     `python -m <module>`; question: what it answers, for the index; args(preset, work): its flags beyond
     --out in experiments.reproduce's tree `work` (WORK/ablation holds the runs it reuses); reuses: the
     experiment whose trained runs it reads;
-    numbers: the sources (files or folders) its numbers depend on beyond the library (a change there makes it
-    stale); figures: the sources of its tables' text and plots (a change there needs only `experiments.replot`);
+    numbers: the sources (files or folders) its numbers depend on beyond the code its module imports (a change
+    there makes it stale); figures: the sources of its tables' text and plots (a change there needs only
+    `experiments.replot`);
     matches: whether a results.json is this experiment's; replot: re-renders a folder from its results.json."""
 
     name: str
@@ -47,8 +49,23 @@ class Experiment:
 
     @property
     def number_sources(self) -> tuple:
-        """Every source its numbers depend on: the library's and its own."""
-        return _CORE + self.numbers
+        """Every source its numbers depend on: the presets, the dependencies, `numbers`, and every file its
+        command runs (the import closure of its module and of the modules under `numbers`, so a change to the
+        live loop does not make Table I stale), less the files that only draw (`figures`)."""
+        from experiments import imports
+
+        known = imports.modules()
+        roots = {self.module} | {m for m, path in known.items()
+                                 if any(_within(str(path.relative_to(imports.ROOT)), n) for n in self.numbers)}
+        if self.module not in known:  # run from outside the graph (tests/): everything it could reach
+            return _CORE + _WHOLE + self.numbers
+        ran = [f for f in imports.files(imports.closure(roots)) if not any(_within(f, g) for g in self.figures)]
+        return _CORE + tuple(dict.fromkeys([*self.numbers, *ran]))
+
+
+def _within(path: str, source: str) -> bool:
+    """Whether a repository path is the source (a file) or lies under it (a folder)."""
+    return path == source or path.startswith(source.rstrip("/") + "/")
 
 
 def _replot_ablation(results: dict, folder) -> None:
@@ -138,24 +155,22 @@ EXPERIMENTS = (
                "Tables I-III: every method's force error on unseen objects, other sensors, and after calibration; "
                "the training report", _has("table1"), _replot_ablation,
                args=lambda preset, work: ["--preset", preset, *_seeds(preset)],
-               numbers=("experiments/ablation.py", "experiments/training_report.py"),
                figures=("experiments/tables.py", "experiments/training_figures.py", "experiments/style.py")),
     Experiment("sweep_loss", "experiments.sweep_loss",
                "Does the depth head help? DINO's error against the depth-loss weight beta/alpha",
                _has("per_beta"), _replot_sweep, args=_trains_seeds,
-               reuses="ablation", numbers=("experiments/sweep_loss.py",), figures=("experiments/tables.py",)),
+               reuses="ablation", figures=("experiments/tables.py", "experiments/style.py")),
     Experiment("pareto", "experiments.pareto",
                "Speed against accuracy: error against latency, training throughput and size, per method and size",
                _has("cells", "fronts"), _replot_pareto, args=_trains_seeds, reuses="ablation",
-               numbers=("experiments/pareto.py",)),
+               figures=("experiments/style.py",)),
     Experiment("stability", "experiments.stability",
                "Where each method fails: the seed spread and the error against noise, lighting, force, shear, "
                "drift and more", _has("factors", "seed_spread"), _replot_stability, args=_reads_ablation,
-               reuses="ablation", numbers=("experiments/stability.py",)),
+               reuses="ablation", figures=("experiments/tables.py", "experiments/style.py")),
     Experiment("downstream", "experiments.downstream",
                "Weighing by pushing (Table IV) and grasping with the trained models in the loop",
                _has("pushing", "grasping"), _replot_downstream, args=_reads_ablation, reuses="ablation",
-               numbers=("experiments/downstream.py",),
                figures=("experiments/downstream_report.py", "experiments/style.py")),
     Experiment("bench-sim", "experiments.bench",
                "The simulator's speed: batched solves against the numpy reference, their agreement, a dataset's time",

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from experiments import common, kernel, style, tables
+from experiments import aggregate, common, kernel, style
 from ffjax import registry
 
 # name: (backbone kind, overrides of cfg["model"][kind]); {} = the preset's own model. All patch 8.
@@ -281,7 +281,7 @@ def run(cfg: dict, methods, sizes, n_seeds: int, out, data_dir=None, full_grid: 
         timings.setdefault("cells_s", {})[label] = round(time.perf_counter() - t, 1)
     timings["train_eval_s"] = round(time.perf_counter() - t_start, 1)
 
-    agg = tables.aggregate(per_run)
+    agg = aggregate.aggregate(per_run)
     # Timing: the first seed's checkpoint of each cell (all seeds share one architecture).
     stats = store.describe(run_dirs[next(iter(run_dirs))][0]).stats
     val = data.load_arrays(data.open_split(dataset.split_dir(data_root, "val")), stats,

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from experiments import imports
+
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("ffjax", "configs", "experiments")
 MAX_LINES = 80
 # Files whose functions must stay under MAX_LINES (issue 15; ffjax/train's are checked in tests/test_train.py).
 SHORT_FUNCTIONS = ("experiments/kernel.py",)
@@ -41,44 +42,9 @@ def _unit(module: str) -> str:
     return ".".join(parts[:2]) if parts[0] == "ffjax" and len(parts) > 1 else parts[0]
 
 
-def _modules() -> dict[str, Path]:
-    """{dotted name: file} of every module in the three packages (a package is its __init__.py)."""
-    out = {}
-    for pkg in PACKAGES:
-        for path in sorted((ROOT / pkg).rglob("*.py")):
-            parts = path.relative_to(ROOT).with_suffix("").parts
-            out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
-    return out
-
-
-def _imported(name: str, path: Path, modules: dict) -> set[str]:
-    """The project modules `name` imports anywhere in its file: `from a.b import c` is a.b.c when that is a
-    module, else a.b; relative imports are resolved against the module's package."""
-    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-    found = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            targets = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
-                base = ".".join(anchor + ([base] if base else []))
-            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
-        else:
-            continue
-        for t in targets:
-            while t and t not in modules:  # `import a.b.c` of a name inside a module: the module
-                t = t.rpartition(".")[0]
-            if t and t != name:
-                found.add(t)
-    return found
-
-
 @pytest.fixture(scope="module")
 def graph() -> dict[str, set[str]]:
-    modules = _modules()
-    return {name: _imported(name, path, modules) for name, path in modules.items()}
+    return imports.graph(ROOT)
 
 
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:

@@ -73,7 +73,7 @@ def test_a_changed_source_makes_a_result_stale_and_its_readers_too(tmp_path, mon
     changes = {("ffjax",): ["ffjax/sim/optics.py", "ffjax/sim/press.py", "ffjax/models/vit.py"]}
 
     def changed(commit, paths):
-        if tuple(paths)[:1] == ("ffjax",) and "experiments/sweep_loss.py" not in paths and "abl" in commit:
+        if "ffjax/sim/press.py" in paths and "experiments/sweep_loss.py" not in paths and "abl" in commit:
             return changes[("ffjax",)]
         if "experiments/tables.py" in paths and "sw" in commit:
             return ["experiments/tables.py"]
@@ -180,3 +180,17 @@ def test_a_replotted_result_is_current_until_its_figures_change_again(tmp_path, 
     _result(tmp_path / "c" / "sweep_loss", commit="old", per_beta={}, replotted="new-dirty")
     rows = {r.folder.parent.name: r.state for r in status.check_all(tmp_path)}
     assert rows == {"a": "replot", "b": "current", "c": "replot"}
+
+
+def test_number_sources_are_the_code_a_command_runs_less_its_drawing():
+    """The import closure of the experiment's module: the simulator and the training for Table I, not the live
+    loop; the modules that only draw are figure sources; a command outside the graph takes the whole library."""
+    ablation = catalog.get("ablation").number_sources
+    for f in ("configs", "pyproject.toml", "experiments/ablation.py", "experiments/aggregate.py",
+              "experiments/kernel.py", "ffjax/sim/press.py", "ffjax/train/loop.py", "ffjax/calibrate/__init__.py"):
+        assert f in ablation, f
+    assert not [f for f in ablation if f.startswith(("ffjax/live", "ffjax/export"))]
+    assert not {"experiments/tables.py", "experiments/training_figures.py", "experiments/style.py"} & set(ablation)
+    assert "ffjax/tasks/pushing.py" in catalog.get("downstream").number_sources
+    assert "experiments/downstream_report.py" not in catalog.get("downstream").number_sources
+    assert "ffjax" in catalog.get("faults").number_sources
