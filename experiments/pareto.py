@@ -361,17 +361,18 @@ def markdown(results: dict) -> str:
              f"Machine: {m['cpu_model']}, {m['cores']} cores; load average {_la(m['loadavg_before'])} before and "
              f"{_la(m['loadavg_after'])} after timing; steal {m['steal']['steal']:.1%}, busy {m['steal']['busy']:.1%} "
              "during it. Compare only within this run.\n"]
+    shown = {r["label"]: f"{style.name(r['method'])} {r['size']}" for r in results["cells"]}  # names people read
     rows = []
     for r in results["cells"]:
-        rows.append([r["label"], len(r.get("seeds", results["seeds"])), f"{r['params_total']:,}",
+        rows.append([shown[r["label"]], len(r.get("seeds", results["seeds"])), f"{r['params_total']:,}",
                      f"{r['params_trainable']:,}",
                      common.fmt(r["table1"], 2), common.fmt(r["table2"], 2), f"{r['latency_b1_ms']:.2f}",
                      f"{r['latency_b32_ms']:.1f}", f"{r['b32_img_s']:.0f}", f"{r['train_img_s']:.0f}"])
-    lines.append(common.md_table(["method@size", "seeds", "params", "trainable", "Table I nl1 %", "Table II nl1 %",
+    lines.append(common.md_table(["method, size", "seeds", "params", "trainable", "Table I nl1 %", "Table II nl1 %",
                                   "latency b1 ms", "latency b32 ms", "infer img/s b32", "train img/s"], rows))
     lines.append("Pareto fronts (non-dominated: lower error and lower latency/params or higher throughput):\n")
     for key, _, _, _, title in PANELS:
-        lines.append(f"- {title}: {', '.join(results['fronts'][key])}")
+        lines.append(f"- {title}: {', '.join(shown.get(c, c) for c in results['fronts'][key])}")
     lines.append("\n" + results["notes"])
     return "\n".join(lines) + "\n"
 

@@ -210,7 +210,7 @@ def _seed_text(results: dict) -> str:
 
 def write_all(results: dict, out: Path) -> None:
     header, rows, (csv_header, csv_rows) = _table(results)
-    text = (f"# Loss-weight sweep: alpha * L1(force) + beta * MSE(depth), base {results['base']} "
+    text = (f"# Loss-weight sweep: alpha * L1(force) + beta * MSE(depth), base {style.name(results['base'])} "
             f"(preset {results['preset']}, {_seed_text(results)}, commit {results['commit'][:12]})\n\n"
             f"Normalized L1 error %, mean ± std over seeds (± only over 2 or more). beta = 0: {results['beta0']}.\n\n"
             + common.md_table(header, rows) + "\n" + results["finding"] + "\n\n![sweep](sweep.png)\n")
