@@ -186,3 +186,20 @@ def test_only_sim_compares_the_batched_solves_with_the_reference(tmp_path):
     assert res["sim_speed"]["memory"]["peak_rss_mib"] > 0
     text = (tmp_path / "sim" / "report.md").read_text()
     assert "batched layer solves against the numpy reference" in text and "Agreement on the same presses" in text
+
+
+def test_a_released_vit_keeps_the_presets_other_keys():
+    """The quick bench's ViT-S/14 case: the released architecture over the preset's ViT keys (the model reads
+    interpolate_offset, which the released architecture does not name), and the model builds at 224."""
+    import jax
+    import jax.numpy as jnp
+
+    import configs
+    from ffjax.models import vit
+
+    cfg = bench_jax.case_cfg("paper", {"model.decoder.kind": "tokens"}, vit="s14")
+    assert cfg["model"]["vit"]["dim"] == 384 and cfg["model"]["vit"]["pos_grid"] == 37
+    assert cfg["model"]["vit"]["interpolate_offset"] == configs.get("paper")["model"]["vit"]["interpolate_offset"]
+    params = jax.eval_shape(vit.from_config(cfg["model"]["vit"]).init, jax.random.PRNGKey(0),
+                            jnp.zeros((1, 224, 224, 3)))
+    assert params

@@ -44,10 +44,11 @@ def fake_batch(batch: int, size: int, seed: int = 0) -> dict:
 
 
 def case_cfg(preset: str, overrides: dict | None = None, vit: str | None = None) -> dict:
-    """A preset config; `vit` = "s14"/"b14" swaps in a DINOv2 ViT (pos table 37x37 as released)."""
+    """A preset config; `vit` = "s14"/"b14" swaps in a DINOv2 ViT's architecture (pos table 37x37 as released),
+    keeping the preset's other ViT keys (those the released architecture does not name, e.g. interpolate_offset)."""
     cfg = configs.get(preset, overrides or {})
     if vit:
-        cfg["model"]["vit"] = models.vit_config(vit)
+        cfg["model"]["vit"] = {**cfg["model"]["vit"], **models.vit_config(vit)}
     return cfg
 
 
