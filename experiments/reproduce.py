@@ -55,9 +55,18 @@ def publish(src: Path, dst: Path) -> None:
 
 def merged_record(path: Path, record: dict) -> dict:
     """reproduce.json at path updated by this call's record: an --only call replaces its experiments' entries
-    (each keeps the commit it ran) and leaves the others'."""
+    (each keeps the commit it ran) and leaves the others'. An entry that reused cached stages keeps, as "work",
+    the wall time and commit of the call that did the most work (a cached re-run's seconds are not its cost)."""
     previous = common.read_json(path) or {}
-    return {**previous, **record, "experiments": {**previous.get("experiments", {}), **record["experiments"]}}
+    entries = dict(previous.get("experiments", {}))
+    for name, entry in record["experiments"].items():
+        old = entries.get(name)
+        if old and not entry.get("fresh", True):
+            done = old.get("work") or {"wall_s": old["wall_s"], "commit": old.get("commit", previous.get("commit"))}
+            if done["wall_s"] > entry["wall_s"]:
+                entry = {**entry, "work": done}
+        entries[name] = entry
+    return {**previous, **record, "experiments": entries}
 
 
 def main(argv=None) -> dict:

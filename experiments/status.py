@@ -213,7 +213,10 @@ def index(rows, root, record: dict | None = None) -> str:
         ran = runs.get(str(rel))
         if ran:  # the one command that re-makes it (its experiment's own command line is in reproduce.json)
             cmd = f"python -m experiments.reproduce --preset {record['preset']} --only {rel}"
-            wall = f"{ran['wall_s'] / 60:.1f} min" + ("" if ran.get("fresh", True) else " (cached stages reused)")
+            wall = f"{ran['wall_s'] / 60:.1f} min" + ("" if ran.get("fresh", True) else " (cached stages reused")
+            if "work" in ran:  # what the stages it reused cost when they ran
+                wall += f"; {ran['work']['wall_s'] / 60:.1f} min at `{str(ran['work']['commit'])[:7]}`"
+            wall += "" if ran.get("fresh", True) else ")"
         else:
             cmd, wall = (f"python -m {e.module}" if e else "-"), _wall(r.results)
         commit = f"`{r.commit[:7]}`" + (" (uncommitted changes)" if r.commit.endswith("-dirty") else "")

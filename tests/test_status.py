@@ -125,6 +125,11 @@ def test_an_only_call_keeps_the_other_experiments_records(tmp_path):
                                             "experiments": {"sweep_loss": {"wall_s": 5.0, "commit": "b" * 40}}})
     assert set(merged["experiments"]) == {"ablation", "sweep_loss"} and merged["commit"] == "b" * 40
     assert merged["experiments"]["ablation"]["commit"] == "a" * 40  # each entry keeps the commit it ran
+    # a re-run that reused every cached stage keeps the cost of the run that did the work
+    common.write_json(path, merged)
+    again = reproduce.merged_record(path, {"preset": "quick", "commit": "c" * 40, "experiments": {
+        "ablation": {"wall_s": 0.5, "commit": "c" * 40, "fresh": False}}})
+    assert again["experiments"]["ablation"]["work"] == {"wall_s": 10.0, "commit": "a" * 40}
 
 
 def _commit(repo: Path, files: dict, message: str) -> str:
