@@ -1,76 +1,13 @@
-"""experiments.bench at a tiny size: results structure, finite positive ratios, the compile-once check.
-No timed assertions (these machines are shared; numbers are not checked, only their shape)."""
-
-import json
-import math
-import os
-import shutil
+"""experiments.bench's parts at a tiny size: the compile-once check, FLOP counting, steal and HLO parsing, the
+`--only loop|bf16` reports. A whole benchmark and `--only sim` run in the smoke pipeline (tests/test_reproduce.py,
+checked by tests/_bench_plans.py). No timed assertions (these machines are shared; numbers are not checked, only
+their shape)."""
 
 import pytest
+from _bench_plans import TINY
 
 from experiments.bench import jax_step as bench_jax
-from experiments.bench import report as bench_report
 from experiments.bench import suite as bench
-
-TINY = {
-    "name": "test",
-    "cases": {"quick_vit": {"preset": "smoke", "method": "dino_rd", "size": 32, "batch": 4, "infer": (1,)},
-              "resnet": {"preset": "smoke", "method": "resnet_rd", "size": 32, "batch": 4, "infer": (1,)}},
-    "vit_b14": None, "timing": (0, 1, 1), "infer_timing": (0, 1, 1), "peak_n": 128,
-    "sim": {"n": {"64x64": 10}, "sizes": {"64x64": (24, 32)}}, "data": {"per_shape": 1, "batches": 2},
-    "workers": (0,), "scaling": None, "dp": None, "bf16_acc": None, "profile": False,
-    "fast": ("recompile", "donation"), "loop": {"train": 16, "val": 8, "epochs": 2, "val_every": (1, 2)},
-}
-
-
-def _torch_python():
-    return os.environ.get("FFJAX_TORCH_PYTHON")
-
-
-@pytest.fixture(scope="module")
-def results(tmp_path_factory):
-    out = tmp_path_factory.mktemp("bench")
-    res = bench.run(TINY, out, torch_python=_torch_python(), log=lambda *_: None, skip=("scaling", "dp"))
-    return out, res
-
-
-def test_results_structure(results):
-    out, res = results
-    saved = json.loads((out / "results.json").read_text())
-    for key in ("commit", "machine", "peak", "models", "data", "fast", "ratios", "_env", "date_utc"):
-        assert key in saved, key
-    assert saved["machine"]["cores"] >= 1
-    case = saved["models"]["quick_vit"]
-    assert case["train"]["ffjax"]["gflop_per_step"] > 0 and case["train"]["ffjax"]["gflop_per_step_xla"] > 0
-    assert case["train"]["ffjax"]["memory"]["peak_bytes"] > 0
-    assert set(case["infer"]) == {"b1"}
-    assert {"in_memory", "streaming_w0", "train_consumption_img_s"} <= set(saved["data"]["pipeline"])
-    loops = saved["data"]["loop_efficiency"]
-    assert set(loops) == {"val_every_1", "val_every_2"}
-    for v in loops.values():  # the real loop ran its 2 epochs of 4 steps, minus the 3 warm-up steps
-        assert v["steps"] == 5 and v["steps_per_epoch"] == 4 and v["eval_s"] > 0
-        assert 0 < v["efficiency"] <= v["efficiency_training"] and 0 < v["eval_share"] < 1
-    for env in saved["_env"].values():
-        assert 0 <= env["steal"] <= 1
-    report = (out / "report.md").read_text()
-    assert "## 1. Training step" in report and "no GPU numbers in this run" in report
-
-
-def test_ratios_positive_finite(results):
-    _, res = results
-    r = res["ratios"]
-    for key in ("train_quick_vit_fraction_of_peak", "donation_speedup", "pipeline_in_memory_over_streaming_w0",
-                "loop_efficiency_val_every_1", "loop_efficiency_training_val_every_2",
-                "target_quick_b1_fps_over_digit60"):
-        assert key in r, key
-    for k, v in r.items():
-        assert math.isfinite(v) and v > 0, (k, v)
-
-
-def test_compile_once(results):
-    _, res = results
-    rc = res["fast"]["recompile"]
-    assert rc["compiles_once"] and rc["traces_after"] == 0
 
 
 def test_recompile_check_detects_retrace():
@@ -120,41 +57,6 @@ ENTRY %main (a: f32[2,2]) -> f32[2,2] {
     assert kinds["fusion.1"] == "fusion:kOutput(dot)"
 
 
-def test_report_tolerates_missing_sections(results):
-    _, res = results
-    slim = {k: v for k, v in res.items() if k not in ("data", "fast", "profile", "scaling", "dp")}
-    slim["ratios"] = bench_report.collect_ratios(slim)
-    assert "## 6." in bench_report.report(slim)
-
-
-def test_report_names_the_device_and_torch_compile(results):
-    """A GPU run (device names as jax prints them) with torch eager and torch.compile timings."""
-    import copy
-
-    _, res = results
-    gpu = copy.deepcopy(res)
-    gpu["machine"]["devices"] = ["cuda:0"]
-    gpu["torch"] = {"torch": "2.x", "cuda": True, "cuda_device": "NVIDIA H100"}
-    t = gpu["models"]["quick_vit"]["train"]
-    t["torch"] = {"ms": 4.0, "img_s": 1000.0, "params": t["ffjax"]["params"]}
-    t["torch_compile"] = {"ms": 2.0, "img_s": 2000.0, "params": t["ffjax"]["params"]}
-    gpu["ratios"] = bench_report.collect_ratios(gpu)
-    text = bench_report.report(gpu)
-    assert "NVIDIA H100" in text and "this GPU" in text and "torch.compile img/s" in text
-    assert gpu["ratios"]["train_quick_vit_ffjax_over_torch_compile"] == 2.0 / t["ffjax"]["ms"]
-    assert "ran on the CPU" in bench_report.report(res)
-
-
-@pytest.mark.skipif(not (_torch_python() and shutil.which(_torch_python() or "")),
-                    reason="set FFJAX_TORCH_PYTHON to a python with torch to test the PyTorch side")
-def test_torch_side_same_params(results):
-    _, res = results
-    for case in res["models"]:  # same architecture on both sides, ViT and ResNet (stem, decoder grid) alike
-        t = res["models"][case]["train"]
-        assert t["torch"]["params"] == t["ffjax"]["params"], case
-    assert res["ratios"]["train_quick_vit_ffjax_over_torch"] > 0
-
-
 def test_only_parts_write_their_own_report(tmp_path):
     """`--only loop` and `--only bf16` at a tiny size: their tables, ratios and every round recorded."""
     plan = {**TINY, "loop": {**TINY["loop"], "val_every": (2,), "rounds": 2},
@@ -167,25 +69,6 @@ def test_only_parts_write_their_own_report(tmp_path):
     res = bench.run_only("bf16", plan, tmp_path / "bf16", log=lambda *_: None)
     assert set(res["bf16_methods"]) == {"resnet_rd"} and res["ratios"]["speedup_bf16_resnet_rd"] > 0
     assert "val loss bf16/f32" in (tmp_path / "bf16" / "report.md").read_text()
-
-
-def test_only_sim_compares_the_batched_solves_with_the_reference(tmp_path):
-    """`--only sim` at a tiny size: rates of both paths per size and batch, their agreement on every indenter and
-    unseen object, one batch's peak memory; all in the report."""
-    plan = {**TINY, "sim_speed": {"sizes": {"24x32": (24, 32)}, "batches": (1, 4), "n": 4, "reference_n": 2,
-                                  "agreement_size": (24, 32), "agreement_per_shape": 1,
-                                  "agreement_sensors": ("mini-1-gel1", "digit"), "memory": (4, (24, 32)),
-                                  "dataset": None}}
-    res = bench.run_only("sim", plan, tmp_path / "sim", log=lambda *_: None)
-    r = res["sim_speed"]["rates"]["24x32"]
-    assert r["reference_s"] > 0 and set(r["batched_s"]) == {1, 4} and all(v > 0 for v in r["speedup"].values())
-    ag = res["sim_speed"]["agreement"]
-    assert set(ag) == {"mini-1-gel1", "digit"}
-    for v in ag.values():  # the same physics on both paths (the bench's own measure, loose: a tiny grid)
-        assert v["presses"] > 0 and v["refused_by_one"] == 0 and v["force_rel_max"] < 0.01
-    assert res["sim_speed"]["memory"]["peak_rss_mib"] > 0
-    text = (tmp_path / "sim" / "report.md").read_text()
-    assert "batched layer solves against the numpy reference" in text and "Agreement on the same presses" in text
 
 
 def test_a_released_vit_keeps_the_presets_other_keys():

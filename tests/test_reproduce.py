@@ -10,10 +10,12 @@ import math
 import shutil
 from pathlib import Path
 
+import _bench_plans
 import _notebooks
 
 import configs
 from experiments import catalog, common, kernel, pareto, reproduce, status
+from experiments.bench import suite as bench_suite
 from ffjax import registry
 from ffjax.tasks import pushing
 
@@ -28,6 +30,8 @@ def _done_runs(tree):
 
 def test_the_smoke_pipeline_end_to_end(tmp_path, monkeypatch):
     work, published, data = tmp_path / "work", tmp_path / "published", tmp_path / "data"
+    # the benchmarks at toy sizes (the smoke plan's numbers mean nothing either; this keeps the suite short)
+    monkeypatch.setitem(bench_suite.PLANS, "smoke", _bench_plans.PIPELINE)
     record = reproduce.main(["--preset", "smoke", "--work", str(work), "--publish", str(published),
                              "--data", str(data), "--quiet"])
     pipeline = catalog.pipeline()
@@ -82,6 +86,10 @@ def test_the_smoke_pipeline_end_to_end(tmp_path, monkeypatch):
     for obj in pushing.OBJECTS:  # a perfect tactile sensor: only the reference's drift and noise remain
         assert perfect[obj.name]["weight_error"]["mean"] < 0.05 * obj.mass_kg, obj.name
     assert "Weight(1)" in (published / "downstream" / "table4.md").read_text()
+
+    # both benchmarks: every section of the whole one, the simulator's paths and their agreement
+    _bench_plans.check_bench(published / "bench", common.read_json(published / "bench" / "results.json"))
+    _bench_plans.check_sim(published / "bench-sim", common.read_json(published / "bench-sim" / "results.json"))
 
     # a cell the ablation trained takes every further seed it finished (here: a copy re-keyed as seed 1)
     cfg, spec = configs.get("smoke"), registry.get("dino_rd")
