@@ -98,6 +98,10 @@ def main(argv=None) -> dict:
     commit = common.git_commit()
     print(f"{common.prog() or 'reproduce'}: preset {args.preset}, commit {commit[:12]}, "
           f"{len(chosen)} experiments into {work}", file=sys.stderr)
+    if commit.endswith("-dirty"):  # results published by an earlier call count: commit them before the next
+        print("warning: tracked files differ from the commit (published results too): every result of this run "
+              "records it ran on uncommitted changes, which experiments.status calls stale. Commit first.",
+              file=sys.stderr)
     record = {"preset": args.preset, "commit": commit, "load_start": list(os.getloadavg()), "experiments": {}}
     t0 = time.perf_counter()
     for exp in chosen:
