@@ -62,7 +62,7 @@ def merged_record(path: Path, record: dict) -> dict:
     for name, entry in record["experiments"].items():
         old = entries.get(name)
         if old and not entry.get("fresh", True):
-            done = old.get("work") or {"wall_s": old["wall_s"], "commit": old.get("commit", previous.get("commit"))}
+            done = old.get("work") or {"wall_s": old["wall_s"], "commit": old.get("commit")}  # None: not recorded
             if done["wall_s"] > entry["wall_s"]:
                 entry = {**entry, "work": done}
         entries[name] = entry

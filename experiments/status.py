@@ -215,7 +215,8 @@ def index(rows, root, record: dict | None = None) -> str:
             cmd = f"python -m experiments.reproduce --preset {record['preset']} --only {rel}"
             wall = f"{ran['wall_s'] / 60:.1f} min" + ("" if ran.get("fresh", True) else " (cached stages reused")
             if "work" in ran:  # what the stages it reused cost when they ran
-                wall += f"; {ran['work']['wall_s'] / 60:.1f} min at `{str(ran['work']['commit'])[:7]}`"
+                at = ran["work"].get("commit")
+                wall += f"; {ran['work']['wall_s'] / 60:.1f} min " + (f"at `{at[:7]}`" if at else "in an earlier call")
             wall += "" if ran.get("fresh", True) else ")"
         else:
             cmd, wall = (f"python -m {e.module}" if e else "-"), _wall(r.results)
