@@ -71,7 +71,10 @@ def _same_code(commit: str, old: str, new: str, root=None) -> bool:
     a, b = (_git("show", f"{rev}:{p}", root=root) for rev, p in ((commit, old), ("HEAD", new)))
     if a.returncode or b.returncode:
         return False
-    return a.stdout == b.stdout or (_code(a.stdout, old) is not None and _code(a.stdout, old) == _code(b.stdout, new))
+    if a.stdout == b.stdout:
+        return True
+    before = _code(a.stdout, old)
+    return before is not None and before == _code(b.stdout, new)
 
 
 def changed_since(commit: str, paths, root=None) -> list[str] | None:
