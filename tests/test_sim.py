@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from ffjax import sim
-from ffjax.sim import mechanics
+from ffjax.sim import mechanics, optics
+from ffjax.sim.sensors import with_markers, with_pattern_moving
 
 SIZE = (24, 32)
 
@@ -61,8 +62,9 @@ def _symmetric_sensor():
     """mini-1 with LEDs mirror-symmetric about x = 0 and a uniform pigment."""
     base = sim.get_sensor("mini-1")
     leds = (sim.LED(90, 6.0, (1.0, 0.3, 0.3)), sim.LED(270, 6.0, (0.3, 0.3, 1.0)))
-    gel = dataclasses.replace(base.gel, texture_contrast=0.0, markers=False)
-    return dataclasses.replace(base, leds=leds, gel=gel, unevenness=0.0, name="mini-sym")
+    gel = dataclasses.replace(base.gel, pigment=0.0, markers=False)
+    return dataclasses.replace(base, leds=leds, gel=gel, unevenness=0.0, pixel_pattern=0.0, dust=0,
+                               white_balance=(1.0, 1.0, 1.0), name="mini-sym")
 
 
 def test_mirrored_shear_mirrors_depth_and_image():
@@ -90,10 +92,35 @@ def test_shear_capped_by_friction():
 
 
 def test_shear_moves_the_pigment():
-    sensor = sim.get_sensor("mini-1", gel=3)  # markers
+    sensor = with_markers(sim.get_sensor("mini-1", gel=3))
     a = sim.press("sphere_big", sensor, force=(0, 0, 3.0), size=(48, 64), noise=False)
     b = sim.press("sphere_big", sensor, force=(1.5, 0, 3.0), size=(48, 64), noise=False)
     assert np.abs(a.image.astype(int) - b.image).mean() > 0.5
+
+
+def test_only_the_gels_pattern_moves():
+    """A gel moved sideways carries its pigment; the camera's vignette, gains, pixel pattern and dust stay."""
+    size = (60, 80)
+    flat = np.zeros(size, np.float32)
+    shift = np.full(size + (2,), 2.0, np.float32)
+    camera_only = with_pattern_moving(sim.get_sensor("mini-1"), 0.0)
+    assert camera_only.gel.pigment == 0 and camera_only.dust > 0
+    still = optics.render(camera_only, size, flat, None, None)
+    assert np.array_equal(optics.render(camera_only, size, flat, shift, None), still)
+    pigment_only = with_pattern_moving(sim.get_sensor("mini-1"), 1.0)
+    moved = optics.render(pigment_only, size, flat, shift, None).astype(int)
+    assert np.abs(moved - optics.render(pigment_only, size, flat, None, None)).mean() > 0.2
+    assert not sim.get_sensor("mini-1", gel=3).gel.markers  # Table II's gels carry none
+
+
+def test_pattern_split_keeps_the_total():
+    s = sim.get_sensor("mini-2", gel=2)
+    for share in (0.0, 0.5, 1.0):
+        t = with_pattern_moving(s, share)
+        assert np.hypot(t.gel.pigment, t.pixel_pattern) == pytest.approx(np.hypot(s.gel.pigment, s.pixel_pattern))
+        assert t.gel.pigment**2 / (t.gel.pigment**2 + t.pixel_pattern**2) == pytest.approx(share)
+    with pytest.raises(ValueError, match="moving share"):
+        with_pattern_moving(s, 1.5)
 
 
 def test_same_seed_same_bytes():

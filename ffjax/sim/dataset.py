@@ -48,7 +48,7 @@ from ffjax.files import atomic_write, atomic_write_text, check_writable
 from ffjax.sim import batched
 from ffjax.sim.sensors import MINI_NAMES, SENSOR_NAMES, get_sensor
 
-VERSION = 1
+VERSION = 2  # 2: the camera's patterns stay put, a real Mini's colour balance and fine pattern (issue 32)
 # Generation knobs (cfg["data"]): every one decides the bytes on disk
 GEN_KEYS = ("render_size", "train_per_indenter", "val_per_indenter", "unseen_per_object",
             "sensor_test_per_indenter", "calib_samples", "fz_max", "shear_max", "shard_size", "fz_min",

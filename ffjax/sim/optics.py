@@ -1,6 +1,12 @@
 """Gel surface -> RGB frame for one sensor: Lambertian shading of the surface normals by the sensor's
-LEDs (direction from each pixel to the LED, colour, inverse-square falloff), pigment albedo with its
-texture and markers (warped by shear), uneven pad, vignetting, blur, camera noise, uint8.
+LEDs (direction from each pixel to the LED, colour, inverse-square falloff), the gel's pigment and markers
+(carried by its tangential displacement), then the camera's side, which stays put however the gel moves:
+uneven lighting, vignetting, per-channel gain (its colour balance), blur, dust on the optics, the pixels'
+fixed gain pattern, noise, uint8.
+
+Static image patterns are split by what carries them: the fine fixed pattern a real sensor shows at rest is
+part pigment (moves with the gel) and part camera (pixel gains, dust: stays); rest frames cannot tell the two
+apart (experiments.diagnostics.rest_recording), so the split is a sensor parameter (sensors.PATTERN_MOVING).
 
 Per-(sensor, size) tables (light directions, falloff, albedo, gain) are built once and cached.
 `sensor` is a sensors.Sensor; this module does not import sensors.py (Sensor.background calls into it), so
@@ -28,9 +34,9 @@ class Tables:
     fall: np.ndarray  # (K, H, W) irradiance falloff of each LED
     colour: np.ndarray  # (K, 3) LED colour * intensity
     ambient: np.ndarray  # (3,)
-    albedo: np.ndarray  # (H, W, 3) pigment, texture, markers, unevenness
-    shade_gain: np.ndarray  # (H, W, 1) gain * vignette
-    albedo_gain: np.ndarray | None  # (H, W, 3) albedo * shade_gain (what multiplies the radiance)
+    albedo: np.ndarray  # (H, W, 3) the gel's: pigment colour, its fine pattern, markers (moves with the gel)
+    shade_gain: np.ndarray  # (H, W, 3) the camera's smooth gain: lighting unevenness, vignette, colour balance
+    pixel_gain: np.ndarray  # (H, W, 1) the camera's fine gain after the blur: pixels' fixed pattern, dust
     flat: np.ndarray  # (H, W, 3) radiance of the undeformed gel
     blur: float  # px
     noise: float  # 8-bit std
@@ -50,6 +56,35 @@ def grid(sensor, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     y = (np.arange(H) - (H - 1) / 2) * dy
     X, Y = np.meshgrid(x.astype(np.float32), y.astype(np.float32))
     return X, Y
+
+
+FINE_PX = 4.0  # a "fine" pattern: what a Gaussian blur of this sigma (native px) removes, finer than lighting
+PIGMENT_GRAIN_PX = 1.0  # the pigment's grain (native px, Gaussian sigma); the camera's pixel pattern is white
+
+
+def fine_pattern(rng: np.random.Generator, shape: tuple[int, int], grain_px: float, blur_px: float) -> np.ndarray:
+    """A random fixed pattern at native size, float32, scaled so that its fine part (less a FINE_PX blur), as the
+    camera sees it through a blur of blur_px, has rms 1: a sensor's pattern parameters are then what
+    experiments.diagnostics.rest_recording reads off frames at rest (fraction of the level)."""
+    x = rng.standard_normal(shape).astype(np.float32)
+    if grain_px > 0:
+        x = cv2.GaussianBlur(x, (0, 0), grain_px)
+    seen = cv2.GaussianBlur(x, (0, 0), blur_px) if blur_px >= 0.3 else x
+    fine = seen - cv2.GaussianBlur(seen, (0, 0), FINE_PX)
+    return x / (fine.std() + 1e-12)
+
+
+def _dust(rng: np.random.Generator, shape: tuple[int, int], count: int) -> np.ndarray:
+    """The gain of `count` dust specks on the optics (out of focus, fixed to the camera): dark round blurs of
+    0.6-1.5 px (sigma) that take 5-30% of the light at their centre, as a real Mini shows at rest."""
+    H, W = shape
+    gain = np.ones(shape, np.float32)
+    rows, cols = np.mgrid[0:H, 0:W].astype(np.float32)
+    for _ in range(count):
+        y, x = rng.uniform(0, H), rng.uniform(0, W)
+        sigma, depth = rng.uniform(0.6, 1.5), rng.uniform(0.05, 0.3)
+        gain *= 1 - depth * np.exp(-((rows - y) ** 2 + (cols - x) ** 2) / (2 * sigma**2))
+    return gain
 
 
 @functools.lru_cache(maxsize=64)
@@ -77,15 +112,10 @@ def tables(sensor, size: tuple[int, int]) -> Tables:
     fall = np.stack(fall).astype(np.float32)
     colour = np.stack(colour).astype(np.float32)
 
-    # pigment: fine speckle of the gel's particles + low-frequency unevenness of the cast + markers. They belong
-    # to the gel pad, not the camera unit: a gel moved to another unit (Table II) brings its own pattern
-    rng = np.random.default_rng(_seed("gel", sensor.gel.texture_seed))
     nh, nw = sensor.native_size
-    speck = cv2.GaussianBlur(rng.standard_normal((nh, nw)).astype(np.float32), (0, 0), 2.0)
-    speck /= speck.std() + 1e-9
-    low = cv2.GaussianBlur(rng.standard_normal((nh, nw)).astype(np.float32), (0, 0), nw / 8)
-    low /= low.std() + 1e-9
-    tex = 1 + sensor.gel.texture_contrast * speck + sensor.unevenness * low
+    # the gel's side, a property of the pad (a gel moved to another unit, Table II, brings it along)
+    gel_rng = np.random.default_rng(_seed("gel", sensor.gel.texture_seed))
+    tex = 1 + sensor.gel.pigment * fine_pattern(gel_rng, (nh, nw), PIGMENT_GRAIN_PX, sensor.blur_px)
     tex = cv2.resize(tex, (W, H), interpolation=cv2.INTER_AREA)
     if sensor.gel.markers:  # dark dots, 1.6 mm pitch, 0.5 mm diameter
         pitch, rad = 1.6, 0.25
@@ -96,15 +126,27 @@ def tables(sensor, size: tuple[int, int]) -> Tables:
         tex = tex * (1 - 0.75 * cover)
     albedo = (np.asarray(sensor.albedo, np.float32) * tex[..., None]).astype(np.float32)
 
+    # the camera's side, a property of the unit: the same for every gel it carries
+    cam_rng = np.random.default_rng(_seed("camera", sensor.name))
+    low = cv2.GaussianBlur(cam_rng.standard_normal((nh, nw)).astype(np.float32), (0, 0), nw / 8)
+    low /= low.std() + 1e-9
     rr = (X / X.max()) ** 2 + (Y / Y.max()) ** 2
-    vign = (1 - sensor.vignette * rr / 2).astype(np.float32)
+    smooth = (1 + sensor.unevenness * cv2.resize(low, (W, H), interpolation=cv2.INTER_AREA)) \
+        * (1 - sensor.vignette * rr / 2)
+    pixels = 1 + sensor.pixel_pattern * fine_pattern(cam_rng, (nh, nw), 0.0, 0.0)
+    pixels *= _dust(cam_rng, (nh, nw), sensor.dust)
+    pixels = cv2.resize(pixels, (W, H), interpolation=cv2.INTER_AREA)
     scale = W / sensor.native_size[1]
     t = Tables(X, Y, mpp, dome_gx, dome_gy, light, fall, colour, np.asarray(sensor.ambient, np.float32),
-               albedo, vign[..., None], None, np.zeros((H, W, 3), np.float32), sensor.blur_px * scale,
-               sensor.noise_std, *np.meshgrid(np.arange(W, dtype=np.float32), np.arange(H, dtype=np.float32)))
+               albedo, smooth[..., None].astype(np.float32), pixels[..., None].astype(np.float32),
+               np.zeros((H, W, 3), np.float32), sensor.blur_px * scale, sensor.noise_std,
+               *np.meshgrid(np.arange(W, dtype=np.float32), np.arange(H, dtype=np.float32)))
     t.flat = _radiance(t, np.zeros((H, W), np.float32), (slice(None), slice(None)))
-    t.shade_gain = (t.shade_gain * sensor.brightness / float((t.flat * albedo * t.shade_gain).mean()))
-    t.albedo_gain = (albedo * t.shade_gain).astype(np.float32)
+    # the camera's gain per channel: the untouched frame's mean is the sensor's brightness in its colour balance
+    balance = np.asarray(sensor.white_balance, np.float32)
+    level = sensor.brightness * balance / balance.mean()
+    t.shade_gain = (t.shade_gain * level / (t.flat * albedo * t.shade_gain * t.pixel_gain).mean((0, 1)))
+    t.shade_gain = t.shade_gain.astype(np.float32)
     return t
 
 
@@ -151,16 +193,18 @@ def render(sensor, size: tuple[int, int], depth: np.ndarray, disp_px: np.ndarray
     win = _window(np.abs(depth) > 1e-5, 2)  # shading changes only where the surface moved
     if win is not None:
         img[win] = _radiance(t, depth[win].astype(np.float32), win)
-    albedo = t.albedo_gain
-    if disp_px is not None:  # pigment (and markers) carried by the tangential displacement
+    albedo = t.albedo
+    if disp_px is not None:  # pigment (and markers) carried by the tangential displacement; the camera's gains stay
         w = _window((np.abs(disp_px[..., 0]) + np.abs(disp_px[..., 1])) > 1e-3, 2)
         if w is not None:
             albedo = albedo.copy()
-            albedo[w] = cv2.remap(t.albedo_gain, t.px[w] - disp_px[w][..., 0], t.py[w] - disp_px[w][..., 1],
+            albedo[w] = cv2.remap(t.albedo, t.px[w] - disp_px[w][..., 0], t.py[w] - disp_px[w][..., 1],
                                   cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
     img *= albedo
+    img *= t.shade_gain
     if t.blur >= 0.3:
         img = cv2.GaussianBlur(img, (0, 0), t.blur)
+    img *= t.pixel_gain
     if seed is not None and t.noise > 0:
         noise = np.random.default_rng(seed).standard_normal(img.shape, dtype=np.float32)
         noise *= t.noise

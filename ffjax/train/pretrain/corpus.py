@@ -29,7 +29,7 @@ from ffjax.data.preprocess import to_unit
 from ffjax.files import atomic_write, atomic_write_text
 from ffjax.sim.dataset import default_workers, render_size
 
-VERSION = 1
+VERSION = 2  # 2: randomized sensors with camera patterns and colour balance (issue 32)
 PROCEDURAL_KINDS = ("pink_noise", "shapes", "gratings", "blobs", "shaded_relief")
 
 
@@ -273,14 +273,15 @@ def randomized_sensor(rng: np.random.Generator, index: int = 0):
         base.gel, young_mpa=young, shear_mpa=young / rng.uniform(2.7, 3.3),
         thickness_mm=float(rng.uniform(3.0, 6.0)), friction=float(rng.uniform(0.7, 1.3)),
         markers=bool(rng.random() < 0.3), texture_seed=int(rng.integers(1000, 1 << 30)),
-        texture_contrast=float(rng.uniform(0.01, 0.07)))
+        pigment=float(rng.uniform(0.003, 0.03)))
     sensor = dataclasses.replace(
         base, name=f"rand-{index}", gel=gel_obj, leds=tuple(leds),
         ambient=tuple(float(v) for v in rng.uniform(0.04, 0.14, 3)),
         albedo=tuple(float(v) for v in rng.uniform(0.75, 0.9, 3)),
-        brightness=float(rng.uniform(110, 170)), vignette=float(rng.uniform(0.1, 0.45)),
+        brightness=float(rng.uniform(80, 170)), vignette=float(rng.uniform(0.1, 0.45)),
         blur_px=float(rng.uniform(0.5, 1.5)), noise_std=float(rng.uniform(1.0, 4.0)),
-        unevenness=float(rng.uniform(0.03, 0.1)),
+        unevenness=float(rng.uniform(0.03, 0.1)), pixel_pattern=float(rng.uniform(0.003, 0.02)),
+        dust=int(rng.integers(0, 10)), white_balance=tuple(float(v) for v in rng.uniform(0.7, 1.3, 3)),
         dome_radius_mm=float(rng.uniform(40, 100)) if rng.random() < 0.2 else None)
     return sensor
 
