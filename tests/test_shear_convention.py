@@ -10,6 +10,7 @@ from ffjax import sim
 from ffjax.data import preprocess
 from ffjax.sim import optics
 from ffjax.sim.dataset import render_size
+from ffjax.sim.sensors import with_markers
 
 FZ = 5.0
 
@@ -28,7 +29,7 @@ def _unpadded(x, size):
 
 def test_pigment_moves_with_the_displacement():
     """optics.render: a uniform +1 px displacement along x (then y) moves the pigment +1 px along x (y)."""
-    sensor = sim.get_sensor("mini-1", gel=3)  # markers: a strong texture to track
+    sensor = with_markers(sim.get_sensor("mini-1", gel=3))  # a strong texture to track
     size = (48, 64)
     flat = np.zeros(size, np.float32)
     base = optics.render(sensor, size, flat, None, None).astype(np.float32).mean(-1)

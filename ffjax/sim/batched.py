@@ -8,10 +8,11 @@ it has converged (a convergence mask), its FFTs batched with the others'. float3
   Polonsky-Keer conjugate gradients whose target follows the approach (the reference runs the fixed point on the
   approach as an outer loop of whole solves, ~3 of them; here it converges inside one, in about half the
   iterations), stopping where the reference's loops both stop.
-- `stick(held, force, layer)`: the body stuck to the gel over its contact, loaded by the tangential force
-  itself (the reference solves for unit displacements along x and y and combines them): the traction on the
-  contact with the force's sum and the pressure change with zero sum, the surface displaced uniformly there.
-  One right-hand side instead of two, the same solution (linear in the force).
+- `stick(held, force, layer, depths)`: the body stuck to the gel over its contact, holding it on the plane at
+  each press's depth, loaded by the tangential force itself (the reference solves for unit displacements along
+  x and y and combines them): the traction on the contact with the force's sum and the pressure change with
+  zero sum, the held gel displaced uniformly. One right-hand side instead of two, the same solution (linear in
+  the force). Each press brings its own kernels (the layer's at its depth).
 
 Batches are padded to one of BATCHES (copies of the first press, dropped after), so a sensor and grid compile
 at most len(BATCHES) programs per solve; larger batches are cut into pieces of max_batch() presses: 32 on a
@@ -170,11 +171,8 @@ def _normal_program(cell: float, thickness: float, tol: float, outer_tol: float,
 
 @functools.lru_cache(maxsize=32)
 def _kernels(layer: Layer):
-    """The layer's Fourier kernels on the device: the normal compliance and the six coupled ones (the two
-    imaginary coupling kernels as their imaginary parts)."""
-    cxx, cxy, cyy, zx, zy, cnn = layer._coupled_kernels()
-    coupled = tuple(jnp.asarray(k, jnp.float32) for k in (cxx, cxy, cyy, np.imag(zx), np.imag(zy), cnn))
-    return jnp.asarray(layer.kernel, jnp.float32), coupled
+    """The layer's normal compliance on the device."""
+    return jnp.asarray(layer.kernel, jnp.float32)
 
 
 def _pieces(n: int):
@@ -197,7 +195,7 @@ def normal(hb: np.ndarray, fz: np.ndarray, layer: Layer, thickness: float, eps: 
     the approach the caller refuses (a press past it stops early). Returns numpy arrays: delta (B,) mm,
     u (B, H, W) the linear layer's displacement, p (B, H, W) MPa, iterations (B,)."""
     hb, fz = np.asarray(hb, np.float32), np.asarray(fz, np.float32)
-    kernel, _ = _kernels(layer)
+    kernel = _kernels(layer)
     run = _normal_program(float(layer.dx) ** 2, float(thickness), float(tol), float(outer_tol), int(max_iter),
                           float(refuse_above), eps is not None)
     table = tuple(jnp.asarray(np.zeros(2) if t is None else t, jnp.float32) for t in (eps, psi))
@@ -209,21 +207,23 @@ def normal(hb: np.ndarray, fz: np.ndarray, layer: Layer, thickness: float, eps: 
 
 
 def _coupled_apply(kern, q):
-    """(ux, uy, depth) (3, H, W) under the traction and pressure q = (qx, qy, p) (3, H, W). The kernels are real
-    (cxx, cxy, cyy, cnn) or imaginary (the coupling zx, zy, given by their imaginary parts): the products are
-    written on the transforms' real and imaginary parts (a third faster than complex arithmetic on a CPU)."""
-    cxx, cxy, cyy, zx, zy, cnn = kern
+    """(ux, uy, depth) (3, H, W) under the traction and pressure q = (qx, qy, p) (3, H, W), with the kernels of
+    `Layer.coupled` (cxx, cxy, cyy, cnn real; the couplings zq, zp imaginary, given by their imaginary parts).
+    The products are written on the transforms' real and imaginary parts (a third faster than complex
+    arithmetic on a CPU)."""
+    cxx, cxy, cyy, cnn, zqx, zqy, zpx, zpy = kern
     f = jnp.fft.rfft2(q)
     fr, fi = jnp.real(f), jnp.imag(f)
-    re = jnp.stack([cxx * fr[0] + cxy * fr[1] + zx * fi[2], cxy * fr[0] + cyy * fr[1] + zy * fi[2],
-                    cnn * fr[2] - zx * fi[0] - zy * fi[1]])
-    im = jnp.stack([cxx * fi[0] + cxy * fi[1] - zx * fr[2], cxy * fi[0] + cyy * fi[1] - zy * fr[2],
-                    cnn * fi[2] + zx * fr[0] + zy * fr[1]])
+    re = jnp.stack([cxx * fr[0] + cxy * fr[1] - zpx * fi[2], cxy * fr[0] + cyy * fr[1] - zpy * fi[2],
+                    cnn * fr[2] - zqx * fi[0] - zqy * fi[1]])
+    im = jnp.stack([cxx * fi[0] + cxy * fi[1] + zpx * fr[2], cxy * fi[0] + cyy * fi[1] + zpy * fr[2],
+                    cnn * fi[2] + zqx * fr[0] + zqy * fr[1]])
     return jnp.fft.irfft2(lax.complex(re, im), s=q.shape[-2:])
 
 
-def _stick_one(held, force, kern, cell, tol, max_iter):
-    """The force-controlled stick solve of one press: (fields (3, H, W) = (ux, uy, depth) mm, s (2,) mm, its)."""
+def _stick_one(held, force, hold, surface, cell, tol, max_iter):
+    """The force-controlled stick solve of one press with its kernels on the held plane and at the surface:
+    (fields (3, H, W) = (ux, uy, depth) mm, the held gel's on the contact, s (2,) mm, iterations)."""
     on = held.astype(jnp.float32)
     n_on = jnp.sum(on)
 
@@ -232,7 +232,7 @@ def _stick_one(held, force, kern, cell, tol, max_iter):
         return v - on * (jnp.sum(v, (-2, -1), keepdims=True) / n_on)
 
     t = jnp.stack([on * (force[0] / (n_on * cell)), on * (force[1] / (n_on * cell)), jnp.zeros_like(on)])
-    u = _coupled_apply(kern, t)
+    u = _coupled_apply(hold, t)
     s = jnp.sqrt(jnp.sum((jnp.sum(u[:2] * on, (-2, -1)) / n_on) ** 2))  # the size of the displacement: the scale
     r = -project(u)
     rr = jnp.sum(r * r)
@@ -243,34 +243,40 @@ def _stick_one(held, force, kern, cell, tol, max_iter):
 
     def step(c):
         it, t, r, d, rr = c
-        ad = project(_coupled_apply(kern, d))
+        ad = project(_coupled_apply(hold, d))
         a = rr / jnp.maximum(jnp.sum(d * ad), _TINY)
         t, r = t + a * d, r - a * ad
         rr_new = jnp.sum(r * r)
         return it + 1, t, r, r + (rr_new / jnp.maximum(rr, _TINY)) * d, rr_new
 
     it, t, *_ = lax.while_loop(cond, step, (0, t, r, r, rr))
-    fields = _coupled_apply(kern, t)
-    return fields, jnp.sum(fields[:2] * on, (-2, -1)) / n_on, it
+    at_hold = _coupled_apply(hold, t)
+    fields = jnp.where(held, at_hold, _coupled_apply(surface, t))
+    return fields, jnp.sum(at_hold[:2] * on, (-2, -1)) / n_on, it
 
 
 @functools.lru_cache(maxsize=32)
 def _stick_program(cell: float, tol: float, max_iter: int):
-    def run(held, force, kern):
-        return jax.vmap(lambda h, f: _stick_one(h, f, kern, cell, tol, max_iter))(held, force)
+    def run(held, force, hold, surface):
+        return jax.vmap(lambda h, f, a, b: _stick_one(h, f, a, b, cell, tol, max_iter))(held, force, hold, surface)
 
     return jax.jit(run)
 
 
-def stick(held: np.ndarray, force: np.ndarray, layer: Layer, tol: float = 1e-4, max_iter: int = 500) -> dict:
+def stick(held: np.ndarray, force: np.ndarray, layer: Layer, depths=None, tol: float = 1e-4,
+          max_iter: int = 500) -> dict:
     """The stick solve of B presses: held (B, *layer.shape) bool, each a non-empty contact; force (B, 2) N the
-    tangential load. Returns numpy arrays: fields (B, 3, H, W) = (ux, uy, depth) mm, s (B, 2) the body's
+    tangential load; depths (B,) mm, the plane each body holds the gel on (None: the surface; see
+    `Layer.coupled`). Returns numpy arrays: fields (B, 3, H, W) = (ux, uy, depth) mm, s (B, 2) the body's
     displacement in mm, iterations (B,). The CG stops when the rms displacement error on the contact is below
     tol x |s| (the reference's tolerance per mm of displacement)."""
     held, force = np.asarray(held, bool), np.asarray(force, np.float32)
-    _, kern = _kernels(layer)
+    depths = np.zeros(len(held)) if depths is None else np.asarray(depths, np.float64)
     run = _stick_program(float(layer.dx) ** 2, float(tol), int(max_iter))
-    parts = [jax.device_get(run(_padded(held[a:b], m), _padded(force[a:b], m), kern)) for a, b, m in
-             _pieces(len(held))]
+    parts = []
+    for a, b, m in _pieces(len(held)):
+        kernels = [layer.coupled(float(d)) for d in _padded(depths[a:b], m)]
+        hold, surface = (np.stack([np.stack(k[j]) for k in kernels]) for j in (0, 1))  # (m, 8, H, W // 2 + 1)
+        parts.append(jax.device_get(run(_padded(held[a:b], m), _padded(force[a:b], m), hold, surface)))
     return {k: np.concatenate([np.asarray(part[i])[: b - a] for part, (a, b, _) in zip(parts, _pieces(len(held)))])
             for i, k in enumerate(("fields", "s", "iterations"))}

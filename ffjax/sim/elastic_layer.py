@@ -28,6 +28,14 @@ displaced sideways (a linear problem, conjugate gradients): its stiffness is set
 so a body touching through fine asperities (knurl, grooves) at a pitch well under t holds the gel across
 its whole face, as a smooth face does. The normal solve ignores the coupling (the body is frictionless
 while it presses), and stick is assumed over the whole contact (no partial slip at its edge).
+
+A body in stick holds the gel on the walls of the pit it has pressed, not on the flat reference surface: the
+tangential load acts at depth. `buried_response` gives the layer's response to loads on a plane at depth d
+(the layer cut there: displacement continuous, traction jumping by the load), at that depth and at the
+surface, solved per wavenumber from the same Stokes-form equations (stream function (A + B z) e^{kz} +
+(C + D z) e^{-kz} in each part, written with exponentials that decay away from each part's faces, so the
+8 x 8 system stays well conditioned at any kt). At d = 0 it is C, C_L, C_T and C_N above; a buried tangential
+load lifts the surface ahead of it far more than a surface one does (Mindlin's buried force against Cerruti's).
 """
 
 from __future__ import annotations
@@ -75,6 +83,94 @@ def tangential_compliance(k: np.ndarray, thickness: float, shear_mpa: float):
     return cl, ct, cn
 
 
+def _stream_basis(s: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """The four stream functions of one part of the layer (k = 1), e^-s, s e^-s, e^-r, r e^-r with s the depth
+    below the part's top and r the height above its bottom, as the state (u_L, u_z, sigma_Lz, sigma_zz)
+    they give (G = 1; u_L = psi', u_z = -i psi): (..., 4 functions, 4 state entries)."""
+    es, er = np.exp(-s), np.exp(-r)
+    derivs = np.stack([  # psi, psi', psi'', psi''' (z down)
+        np.stack([es, -es, es, -es], -1),
+        np.stack([s * es, (1 - s) * es, (s - 2) * es, (3 - s) * es], -1),
+        np.stack([er, er, er, er], -1),
+        np.stack([r * er, (r - 1) * er, (r - 2) * er, (r - 3) * er], -1)], -2)
+    psi, d1, d2, d3 = (derivs[..., j] for j in range(4))
+    return np.stack([d1 + 0j, -1j * psi, d2 + psi + 0j, 1j * (d3 - 3 * d1)], -1)
+
+
+def _faces(state: np.ndarray, rows: slice) -> np.ndarray:
+    return state[:, :, rows].transpose(0, 2, 1)  # (n, state rows, functions)
+
+
+def _buried_unit(kt: np.ndarray, kd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """buried_response in units k = G = 1 for 1-D arrays kt > 0, 0 <= kd < kt."""
+    n = kt.size
+    upper, lower, zero = kd, kt - kd, np.zeros(n)
+    top_a, bottom_a = _stream_basis(zero, upper), _stream_basis(upper, zero)
+    top_b, bottom_b = _stream_basis(zero, lower), _stream_basis(lower, zero)
+    surface = kd < 1e-9  # the load on the surface itself: no upper part
+    # in-plane (L, z): coefficients of the upper part (4) and the lower part (4)
+    m = np.zeros((n, 8, 8), complex)
+    m[:, 0:2, 0:4] = _faces(top_a, slice(2, 4))  # free surface
+    m[:, 2:4, 0:4], m[:, 2:4, 4:8] = _faces(bottom_a, slice(0, 2)), -_faces(top_b, slice(0, 2))  # continuous
+    m[:, 4:6, 0:4], m[:, 4:6, 4:8] = -_faces(bottom_a, slice(2, 4)), _faces(top_b, slice(2, 4))  # the load
+    m[:, 6:8, 4:8] = _faces(bottom_b, slice(0, 2))  # bonded to the glass
+    m[surface, :6] = 0
+    m[surface, 0:4, 0:4] = np.eye(4)
+    m[surface, 4:6, 4:8] = _faces(top_b[surface], slice(2, 4))
+    rhs = np.zeros((n, 8, 2), complex)
+    rhs[:, 4, 0] = rhs[:, 5, 1] = -1.0  # sigma below - sigma above = -load
+    c = np.linalg.solve(m, rhs)
+    at_depth = np.einsum("nfs,nfl->nsl", top_b[:, :, 0:2], c[:, 4:8])
+    at_surface = np.where(surface[:, None, None], at_depth,
+                          np.einsum("nfs,nfl->nsl", top_a[:, :, 0:2], c[:, 0:4]))
+    # across the wavevector (T): u'' = u, sigma_Tz = u'; u = a e^-s + b e^-r in each part
+    ea, eb, one = np.exp(-upper), np.exp(-lower), np.ones(n)
+    t = np.zeros((n, 4, 4))
+    t[:, 0, 0], t[:, 0, 1] = -1.0, ea
+    t[:, 1] = np.stack([ea, one, -one, -eb], -1)
+    t[:, 2] = np.stack([ea, -one, -one, eb], -1)
+    t[:, 3, 2], t[:, 3, 3] = eb, 1.0
+    t[surface, :3, :2] = 0
+    t[surface, 0, 0] = t[surface, 1, 1] = 1.0
+    rt = np.zeros((n, 4, 1))
+    rt[:, 2] = -1.0
+    ct = np.linalg.solve(t, rt)[..., 0]
+    across_depth = ct[:, 2] + ct[:, 3] * eb
+    across_surface = np.where(surface, across_depth, ct[:, 0] + ct[:, 1] * ea)
+
+    def full(plane, across):
+        out = np.zeros((n, 3, 3), complex)
+        out[:, 0, 0], out[:, 0, 2], out[:, 2, 0], out[:, 2, 2] = (
+            plane[:, 0, 0], plane[:, 0, 1], plane[:, 1, 0], plane[:, 1, 1])
+        out[:, 1, 1] = across
+        return out
+
+    return full(at_depth, across_depth), full(at_surface, across_surface)
+
+
+def buried_response(k: np.ndarray, thickness: float, shear_mpa: float, depth: float) -> tuple[np.ndarray, np.ndarray]:
+    """The layer's response to loads on the plane at `depth` (mm, 0 <= depth < thickness): (at_depth,
+    at_surface), each (..., 3, 3) complex in mm / MPa mapping the load (f_L, f_T, p) (along the wavevector,
+    across it, and pressing into the layer) to the displacement (u_L, u_T, u_z) (u_z + into the layer) there and
+    on the surface. At depth 0 both are the surface compliances (C_L, C_T, C on the diagonal, +-i C_N coupling);
+    at k = 0 a uniform tangential load shears the part below the plane, (t - d) / G, and carries the part above."""
+    if not 0.0 <= depth < thickness:
+        raise ValueError(f"depth must be in [0, thickness = {thickness}) mm, got {depth!r}")
+    k = np.asarray(k, dtype=np.float64)
+    flat = k.ravel()
+    at_depth, at_surface = (np.zeros((flat.size, 3, 3), complex) for _ in range(2))
+    small = flat * thickness < 1e-3  # the series limit: the system degenerates as kt -> 0
+    for out in (at_depth, at_surface):
+        out[small, 0, 0] = out[small, 1, 1] = (thickness - depth) / shear_mpa
+    big = ~small
+    if big.any():
+        kt = flat[big] * thickness
+        d, s = _buried_unit(kt, np.minimum(flat[big] * depth, kt))
+        scale = 1.0 / (shear_mpa * flat[big])[:, None, None]
+        at_depth[big], at_surface[big] = d * scale, s * scale
+    return at_depth.reshape(k.shape + (3, 3)), at_surface.reshape(k.shape + (3, 3))
+
+
 class Layer:
     """The layer's influence operators on an (H, W) grid of spacing dx (mm): u = apply(p) for a pressure,
     (ux, uy, depth) = apply_coupled(qx, qy, p) for tangential traction and pressure together."""
@@ -86,36 +182,52 @@ class Layer:
         self.thickness, self.shear_mpa = float(thickness), float(shear_mpa)
         self._ky, self._kx = ky[:, None], kx[None, :]
         self.kernel = compliance(np.hypot(self._ky, self._kx), thickness, shear_mpa)
-        self._coupled = None
+        self._coupled: dict = {}  # depth -> kernels, built on first use: the normal solve does not need them
 
     def apply(self, p: np.ndarray) -> np.ndarray:
         """Surface displacement (mm, + = into the layer) under the pressure field p (MPa)."""
         return np.fft.irfft2(self.kernel * np.fft.rfft2(p), s=self.shape)
 
-    def _coupled_kernels(self):
-        if self._coupled is None:  # built on first use: the normal solve does not need them
+    def coupled(self, depth: float = 0.0) -> tuple[tuple, tuple]:
+        """(hold, surface): the coupled kernels for tangential traction and pressure on the plane at `depth` (mm),
+        giving the displacement on that plane (where a body in stick holds the gel) and on the surface. Each is
+        (cxx, cxy, cyy, cnn, zq_x, zq_y, zp_x, zp_y), float32 on the rfft2 grid: the couplings are imaginary and
+        given by their imaginary parts, zq the depth under a traction, zp the tangential displacement under a
+        pressure. At depth 0 the two are the same (the closed forms)."""
+        key = round(float(depth), 9)
+        if key not in self._coupled:
             k = np.hypot(self._ky, self._kx)
-            cl, ct, cn = tangential_compliance(k, self.thickness, self.shear_mpa)
             safe = np.where(k > 0, k, 1.0)  # k = 0: C_L = C_T, so any unit vector gives the uniform shear
             ex, ey = np.where(k > 0, self._kx / safe, 1.0), np.where(k > 0, self._ky / safe, 0.0)
-            # Hermitian: depth (+ into the layer) = +i C_N q_L, and u_L = -i C_N p for a pressure p
-            self._coupled = tuple(k.astype(np.complex64 if np.iscomplexobj(k) else np.float32) for k in (
-                cl * ex**2 + ct * ey**2, (cl - ct) * ex * ey, cl * ey**2 + ct * ex**2, 1j * cn * ex, 1j * cn * ey,
-                self.kernel))
-        return self._coupled
+            if key == 0.0:
+                cl, ct, cn = tangential_compliance(k, self.thickness, self.shear_mpa)
+                # Hermitian: depth (+ into the layer) = +i C_N q_L, and u_L = -i C_N p for a pressure p
+                parts = [(cl, ct, self.kernel, cn, -cn)] * 2
+            else:
+                uniq, where = np.unique(k, return_inverse=True)
+                parts = [(r[..., 0, 0].real, r[..., 1, 1].real, r[..., 2, 2].real, r[..., 2, 0].imag,
+                          r[..., 0, 2].imag) for r in (x[where.reshape(k.shape)] for x in
+                                                       buried_response(uniq, self.thickness, self.shear_mpa, key))]
+            self._coupled[key] = tuple(tuple(np.asarray(a, np.float32) for a in (
+                ll * ex**2 + tt * ey**2, (ll - tt) * ex * ey, ll * ey**2 + tt * ex**2, zz, zq * ex, zq * ey,
+                zp * ex, zp * ey)) for ll, tt, zz, zq, zp in parts)
+        return self._coupled[key]
 
-    def apply_coupled(self, qx: np.ndarray, qy: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """Surface displacement (..., 3, H, W) = (ux, uy, depth) in mm under the tangential traction (qx, qy)
-        and the pressure p (MPa), each (..., H, W); depth is + into the layer, as in `apply`."""
-        cxx, cxy, cyy, zx, zy, cnn = self._coupled_kernels()
+    def apply_coupled(self, qx: np.ndarray, qy: np.ndarray, p: np.ndarray, kernels: tuple | None = None) -> np.ndarray:
+        """Displacement (..., 3, H, W) = (ux, uy, depth) in mm under the tangential traction (qx, qy) and the
+        pressure p (MPa), each (..., H, W); depth is + into the layer, as in `apply`. kernels: one of `coupled`'s
+        (default: loads and displacement on the surface)."""
+        cxx, cxy, cyy, cnn, zqx, zqy, zpx, zpy = kernels or self.coupled()[0]
         f = np.fft.rfft2(np.stack([qx, qy, p], -3))
         fx, fy, fp = f[..., 0, :, :], f[..., 1, :, :], f[..., 2, :, :]
-        return np.fft.irfft2(np.stack([cxx * fx + cxy * fy - zx * fp, cxy * fx + cyy * fy - zy * fp,
-                                       zx * fx + zy * fy + cnn * fp], -3), s=self.shape)
+        return np.fft.irfft2(np.stack([cxx * fx + cxy * fy + 1j * zpx * fp, cxy * fx + cyy * fy + 1j * zpy * fp,
+                                       1j * zqx * fx + 1j * zqy * fy + cnn * fp], -3), s=self.shape)
 
 
-def solve_stick(contact: np.ndarray, layer: Layer, tol: float = 1e-4, max_iter: int = 500) -> dict:
-    """A rigid body stuck to the surface over `contact` (bool, the layer's grid) and moved sideways by 1 mm
+def solve_stick(contact: np.ndarray, layer: Layer, tol: float = 1e-4, max_iter: int = 500,
+                depth: float = 0.0) -> dict:
+    """A rigid body stuck to the gel over `contact` (bool, the layer's grid), holding it on the plane at `depth`
+    (mm: where the pit it pressed puts its walls; 0: the flat surface), and moved sideways by 1 mm
     along x, then along y, its load unchanged: the tangential tractions that hold the gel there and the
     change of pressure that keeps the gel on the body (the coupling would lift it ahead and drop it behind;
     the body only shifts up or down as a whole). Conjugate gradients on the contact (both directions at
@@ -124,7 +236,8 @@ def solve_stick(contact: np.ndarray, layer: Layer, tol: float = 1e-4, max_iter: 
 
     Returns K, the 2x2 tangential stiffness (N/mm; F = K s for a displacement s), and per unit displacement
     j the surface's change fields[j] (3, H, W) = (ux, uy, depth) in mm per mm of s over the whole grid, so
-    a displacement s gives s_x fields[0] + s_y fields[1]. Raises ValueError for an empty contact.
+    a displacement s gives s_x fields[0] + s_y fields[1]: on the contact the held gel's, elsewhere the surface's.
+    Raises ValueError for an empty contact.
     """
     if contact.shape != layer.shape:
         raise ValueError(f"contact {contact.shape} does not match the layer grid {layer.shape}")
@@ -132,6 +245,7 @@ def solve_stick(contact: np.ndarray, layer: Layer, tol: float = 1e-4, max_iter: 
         raise ValueError("no contact: nothing holds the surface")
     on = contact.astype(np.float32)  # float32 throughout: 1e-4 is far above its round-off, and FFTs run 2x faster
     n_on = float(on.sum())
+    hold, surface = layer.coupled(depth)
 
     def residual_space(v):  # on the contact only; the pressure part with zero mean (its load is fixed)
         v *= on
@@ -143,20 +257,21 @@ def solve_stick(contact: np.ndarray, layer: Layer, tol: float = 1e-4, max_iter: 
 
     target = np.zeros((2, 3) + layer.shape, np.float32)
     target[0, 0], target[1, 1] = on, on
-    t = target * (layer.shear_mpa / layer.thickness)  # the thin-film traction: a close start
-    r = residual_space(target - layer.apply_coupled(*t.transpose(1, 0, 2, 3)))
+    t = target * (layer.shear_mpa / (layer.thickness - depth))  # the thin-film traction: a close start
+    r = residual_space(target - layer.apply_coupled(*t.transpose(1, 0, 2, 3), hold))
     d, rr = r.copy(), dot(r, r)
     stop = tol**2 * n_on
     for _ in range(max_iter):
         if rr.max() <= stop:
             break
-        ad = residual_space(layer.apply_coupled(*d.transpose(1, 0, 2, 3)))
+        ad = residual_space(layer.apply_coupled(*d.transpose(1, 0, 2, 3), hold))
         a = (rr / np.maximum(dot(d, ad), 1e-300)).astype(np.float32)
         t += a * d
         r -= a * ad
         rr, rr_old = dot(r, r), rr
         d = r + (rr / np.maximum(rr_old, 1e-300)).astype(np.float32) * d
-    fields = layer.apply_coupled(*t.transpose(1, 0, 2, 3))
+    loads = t.transpose(1, 0, 2, 3)
+    fields = np.where(contact, layer.apply_coupled(*loads, hold), layer.apply_coupled(*loads, surface))
     K = t[:, :2].sum((-2, -1), dtype=np.float64).T * layer.dx**2  # K[:, j]: the force for a unit displacement along j
     return {"K": K, "fields": [fields[0], fields[1]]}
 

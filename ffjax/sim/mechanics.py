@@ -10,11 +10,14 @@
   stiffens (psi(e) = e + e^2 + ...) and every body reaches 15 N before bottoming out. This is an
   approximation: the stiffening is local, the layer coupling linear.
 - Shear: the body sticks to the gel over its contact and moves sideways by s = K^-1 F_t, where K (2x2) is the
-  same layer's tangential stiffness for that contact (`elastic_layer.solve_stick`: G A / t for a wide face,
-  Mindlin's 16 G a / 3 for a small one, and every contact shape between; a face touching through fine
-  asperities holds the gel across the whole face). The solve gives the surface's tangential displacement
-  everywhere (the gel around the contact dragged along, decaying over ~t) and the rise ahead of the motion
-  and the dip behind it. |F_t| is capped by Coulomb's mu Fz (slip flag); no partial slip at the contact edge.
+  same layer's tangential stiffness for that contact (`elastic_layer.solve_stick`: G A / (t - d) for a wide
+  face, Mindlin's 16 G a / 3 for a small one, and every contact shape between; a face touching through fine
+  asperities holds the gel across the whole face). The body holds the gel on the walls of the pit it pressed,
+  represented by the plane at the contact's mean depth d (`hold_depth`): checked against a plane-strain
+  finite-element model of the pressed layer (experiments.diagnostics.buried_load_check). The solve gives the
+  surface's tangential displacement everywhere (the gel around the contact dragged along, decaying over ~t)
+  and the rise ahead of the motion and the dip behind it. |F_t| is capped by Coulomb's mu Fz (slip flag); no
+  partial slip at the contact edge.
 """
 
 from __future__ import annotations
@@ -198,22 +201,34 @@ class Shear:
 
 
 def shear(ft, fz: float, contact: np.ndarray, mm_per_px: float, shear_mpa: float, thickness: float,
-          friction: float, reference: bool = False) -> Shear:
+          friction: float, reference: bool = False, depth: float = 0.0) -> Shear:
     """Tangential response to the requested shear ft = (Fx, Fy) with the Coulomb cap mu * Fz, for a body in
-    stick over `contact` (bool, the pad grid of spacing mm_per_px: the normal solve's). The batch of one of
-    `shear_batch`."""
+    stick over `contact` (bool, the pad grid of spacing mm_per_px: the normal solve's), holding the gel at
+    `depth` (mm, `hold_depth`). The batch of one of `shear_batch`."""
     return shear_batch([ft], [fz], np.asarray(contact)[None], mm_per_px, shear_mpa, thickness, friction,
-                       reference)[0]
+                       reference, [depth])[0]
 
 
 _NO_SHEAR = 1e-9  # N
+HOLD_STEP_MM = 0.05  # the hold depth is rounded to this: the layer's kernels are built once per depth
+
+
+def hold_depth(normal: Normal, thickness: float) -> float:
+    """The depth (mm) of the plane a pressed body holds the gel on in stick: the mean depth of the gel's surface
+    over the contact (the pit's walls), to HOLD_STEP_MM, below MAX_STRAIN x thickness; 0 without contact."""
+    if not normal.contact.any():
+        return 0.0
+    d = float(np.mean(normal.surface[normal.contact]))
+    return float(np.clip(np.round(d / HOLD_STEP_MM) * HOLD_STEP_MM, 0.0, MAX_STRAIN * thickness))
 
 
 def shear_batch(fts, fzs, contacts, mm_per_px: float, shear_mpa: float, thickness: float, friction: float,
-                reference: bool = False) -> list[Shear]:
-    """`shear` for B presses on one pad grid (contacts (B, H, W)): the stick solves of those with a shear and a
-    contact run batched on the device (`ffjax.sim.batched.stick`); reference=True runs the numpy reference
-    (`elastic_layer.solve_stick`: unit displacements along x and y, combined), which they agree with."""
+                reference: bool = False, depths=None) -> list[Shear]:
+    """`shear` for B presses on one pad grid (contacts (B, H, W), depths (B,) mm or None for the surface): the
+    stick solves of those with a shear and a contact run batched on the device (`ffjax.sim.batched.stick`);
+    reference=True runs the numpy reference (`elastic_layer.solve_stick`: unit displacements along x and y,
+    combined), which they agree with."""
+    depths = np.zeros(len(fts)) if depths is None else np.asarray(depths, np.float64)
     contacts = np.asarray(contacts, bool)
     B, H, W = contacts.shape
     out: list = [None] * B
@@ -234,15 +249,16 @@ def shear_batch(fts, fzs, contacts, mm_per_px: float, shear_mpa: float, thicknes
     held = np.zeros((len(todo),) + layer.shape, bool)
     held[:, m:m + H, m:m + W] = contacts[[i for i, _, _ in todo]]
     force = np.stack([a for _, a, _ in todo])
+    depth = depths[[i for i, _, _ in todo]]
     if reference:
         fields, s = [], []
-        for h, f in zip(held, force):
-            r = elastic_layer.solve_stick(h, layer)
+        for h, f, d in zip(held, force, depth):
+            r = elastic_layer.solve_stick(h, layer, depth=float(d))
             s.append(np.linalg.solve(r["K"], f))
             fields.append(s[-1][0] * r["fields"][0] + s[-1][1] * r["fields"][1])
         fields, s = np.stack(fields), np.stack(s)
     else:
-        r = batched.stick(held, force, layer)
+        r = batched.stick(held, force, layer, depth)
         fields, s = r["fields"], r["s"].astype(np.float64)
     inner = (slice(m, m + H), slice(m, m + W))
     for j, (i, applied, slip) in enumerate(todo):

@@ -172,7 +172,8 @@ def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds,
         return out
     shears = mechanics.shear_batch([r.force[:2] for r, _, _ in ok], [float(r.force[2]) for r, _, _ in ok],
                                    np.stack([n.contact for _, n, _ in ok]), mpp_s, gel.shear_mpa, gel.thickness_mm,
-                                   gel.friction, reference)
+                                   gel.friction, reference,
+                                   [mechanics.hold_depth(n, gel.thickness_mm) for _, n, _ in ok])
     for (req, nrm, i), sh in zip(ok, shears):
         out[i] = _sample(req, sensor, size, nrm, sh, noise)
     return out
@@ -201,12 +202,14 @@ def _sample(req: _Request, sensor: Sensor, size: tuple[int, int], normal, sh, no
     image = optics.render(sensor, size, depth, disp_px, req.seed if noise else None)
     f, pose = req.force, req.pose
     applied = np.array([sh.force[0], sh.force[1], f[2]], dtype=np.float32)
+    hold = mechanics.hold_depth(normal, sensor.gel.thickness_mm) if sh.field is not None else 0.0
     meta = {
         "shape": req.shape.name, "sensor": sensor.name, "gel": sensor.gel_id, "sensor_key": sensor.key,
         "x_mm": pose[0], "y_mm": pose[1], "yaw_deg": pose[2], "tilt_deg": pose[3],
         "penetration_mm": normal.delta, "contact_area_mm2": float(normal.contact.sum() * sdx * sdy),
         "slip": bool(sh.slip), "shear_disp_mm": tuple(float(v) for v in sh.disp_mm),
-        "shear_stiffness_n_per_mm": float(sh.stiffness), "requested_force": tuple(float(v) for v in f),
+        "shear_stiffness_n_per_mm": float(sh.stiffness), "hold_depth_mm": hold,
+        "requested_force": tuple(float(v) for v in f),
         "mm_per_px": float(mpp), "seed": int(req.seed), "size": size,
     }
     return Sample(image, None, depth, applied, meta)
