@@ -26,6 +26,7 @@ from experiments import common, kernel, style
 from experiments import paper_numbers as P
 from experiments.tables import save_png
 from ffjax import registry
+from ffjax.sim.sensors import with_markers
 
 PER_LEVEL = {"smoke": 9, "quick": 180, "full": 360, "gpu": 360, "paper": 360}
 N_LEVELS = {"smoke": 2}  # other presets: every level of each factor
@@ -66,7 +67,11 @@ def factors(cfg: dict) -> tuple[Factor, ...]:
                f"|F_t| = {SHEAR_N:g} N in a fixed direction, Fz in [6, fz_max], tool tilted along the push"),
         Factor("drift", "background gain drift (fraction)", (0.0, 0.02, 0.05, 0.1, 0.15, 0.2), 0,
                "the background frame comes from the sensor in an earlier state (exposure gain +level, LEDs "
-               "drifted by level/2) while the frame is from the current one"),
+               "drifted by level/2) while the frame is from the current one; a real GelSight Mini drifts by "
+               "0.7-4.6% per channel in its first 3 minutes after start-up (experiments.diagnostics.rest_recording)"),
+        Factor("markers", "gel printed with markers (0: no, 1: yes)", (0.0, 1.0), 0,
+               "the same gel with dark markers (1.6 mm pitch, 0.5 mm dots) printed on its pigment: a pattern that "
+               "moves with the gel, strong, and absent from training (the paper's gels carry none)"),
         Factor("flat_size", "flat face side (mm)", FLAT_SIDES_MM, FLAT_SIDES_MM.index(14.0),
                "a square flat punch made like the cube indenter (14 mm, the largest flat face in training), "
                "its side from 3 to 18 mm (the pad sees 20.3 x 15.2 mm), posed and loaded as the cube is"),
@@ -121,6 +126,9 @@ def sensors_for(factor: str, level: float, sensor):
     if factor == "drift":
         early = dataclasses.replace(drift_leds(sensor, level / 2), brightness=sensor.brightness * (1 + level))
         return sensor, early
+    if factor == "markers" and level:
+        s = with_markers(sensor)
+        return s, s
     return sensor, sensor
 
 
@@ -396,6 +404,8 @@ MECHANISM = {
                    "axis a method reads); the LEDs' per-side colour and intensity can add a real asymmetry on top",
     "drift": "a background from another sensor state leaves a uniform offset over the whole difference image, "
              "a pattern no training image had",
+    "markers": "the markers are background-subtracted away at rest, but where the gel moves they leave dark-light "
+               "pairs far stronger than the pigment's: shear made visible in a form no training image had",
     "flat_size": "a flat face shows its load only along its outline (inside, the pressed gel stays flat and "
                  "shades like the background), and faces smaller or larger than the training cube make contacts and "
                  "stiffnesses no training press had",

@@ -230,8 +230,7 @@ def shear_batch(fts, fzs, contacts, mm_per_px: float, shear_mpa: float, thicknes
     combined), which they agree with."""
     depths = np.zeros(len(fts)) if depths is None else np.asarray(depths, np.float64)
     contacts = np.asarray(contacts, bool)
-    B, H, W = contacts.shape
-    out: list = [None] * B
+    out: list = [None] * len(contacts)
     todo = []
     for i, (ft, fz) in enumerate(zip(fts, fzs)):
         ft = np.asarray(ft, dtype=np.float64)
@@ -245,27 +244,119 @@ def shear_batch(fts, fzs, contacts, mm_per_px: float, shear_mpa: float, thicknes
             todo.append((i, applied, slip))
     if not todo:
         return out
+    fields, s = _stick(contacts[[i for i, _, _ in todo]], np.stack([a for _, a, _ in todo]),
+                       depths[[i for i, _, _ in todo]], mm_per_px, shear_mpa, thickness, reference)
+    for j, (i, applied, slip) in enumerate(todo):
+        out[i] = _shear(applied, s[j], slip, fields[j])
+    return out
+
+
+def _shear(force, disp, slip: bool, fields) -> Shear:
+    """A Shear from the force applied, the body's displacement and the fields (3, H, W) = (ux, uy, depth)."""
+    return Shear(np.asarray(force, np.float64), np.asarray(disp, np.float64), slip,
+                 float(np.hypot(*force) / np.hypot(*disp)), np.stack(fields[:2], -1).astype(np.float32),
+                 fields[2].astype(np.float32))
+
+
+def _stick(contacts, forces, depths, mm_per_px: float, shear_mpa: float, thickness: float, reference: bool):
+    """The stick solves of N presses on one pad grid (contacts (N, H, W), each non-empty, forces (N, 2) N, depths
+    (N,) mm): fields (N, 3, H, W) = (ux, uy, depth) on the pad, the bodies' displacements s (N, 2) mm."""
+    N, H, W = contacts.shape
     m, layer = _padded_layer((H, W), mm_per_px, thickness, shear_mpa)
-    held = np.zeros((len(todo),) + layer.shape, bool)
-    held[:, m:m + H, m:m + W] = contacts[[i for i, _, _ in todo]]
-    force = np.stack([a for _, a, _ in todo])
-    depth = depths[[i for i, _, _ in todo]]
+    held = np.zeros((N,) + layer.shape, bool)
+    held[:, m:m + H, m:m + W] = contacts
     if reference:
         fields, s = [], []
-        for h, f, d in zip(held, force, depth):
+        for h, f, d in zip(held, forces, depths):
             r = elastic_layer.solve_stick(h, layer, depth=float(d))
             s.append(np.linalg.solve(r["K"], f))
             fields.append(s[-1][0] * r["fields"][0] + s[-1][1] * r["fields"][1])
         fields, s = np.stack(fields), np.stack(s)
     else:
-        r = batched.stick(held, force, layer, depth)
+        r = batched.stick(held, forces, layer, depths)
         fields, s = r["fields"], r["s"].astype(np.float64)
-    inner = (slice(m, m + H), slice(m, m + W))
-    for j, (i, applied, slip) in enumerate(todo):
-        ux, uy, dz = (f[inner] for f in fields[j])
-        out[i] = Shear(applied, s[j], slip, float(np.hypot(*applied) / np.hypot(*s[j])),
-                       np.stack([ux, uy], -1).astype(np.float32), dz.astype(np.float32))
-    return out
+    return fields[:, :, m:m + H, m:m + W], s
+
+
+def _approach_at_ends(f_mid, d_mid, fz: float, d_end: float, steps: int) -> np.ndarray:
+    """The approach at the steps' end forces fz (j / steps)^1.5, j = 0..steps, from the solves at the middle
+    forces and at fz: interpolated on log-log axes (exact for any power law delta ~ F^p: a sphere's 2/3, a flat
+    face's 1, a wedge's 1/2), 0 at j = 0."""
+    f = np.concatenate([f_mid, [fz]])
+    d = np.maximum(np.concatenate([d_mid, [d_end]]), 1e-12)
+    ends = fz * (np.arange(steps + 1) / steps) ** 1.5
+    out = np.zeros(steps + 1)
+    out[1:] = np.exp(np.interp(np.log(ends[1:]), np.log(f), np.log(d)))
+    if steps > 1:  # below the first middle force: the first segment's power law, not a constant
+        p = np.log(d[1] / d[0]) / np.log(f[1] / f[0])
+        low = ends[1:] < f[0]
+        out[1:][low] = d[0] * (ends[1:][low] / f[0]) ** p
+    out[-1] = d_end
+    return np.maximum.accumulate(out)
+
+
+PATH_STEPS = 4  # steps of the oblique press's path: its tangential force within ~2% of 16 steps (tests)
+
+
+def oblique_batch(hs, mm_per_px: float, shear_mpa: float, thickness: float, friction: float, fzs, slopes,
+                  steps: int = PATH_STEPS, reference: bool = False) -> tuple[list, list]:
+    """The paper's press for B bodies (hs (B, H, W) heights on the pad grid): the tool moves along its tilted axis
+    until the gel carries Fz, so per unit of approach the body also moves sideways by slope = (tan tilt_x,
+    tan tilt_y), and every point of gel it touches stays held from its first touch on (stick, nested growing
+    contacts: Mindlin-Deresiewicz's monotonic oblique loading, where no partial slip arises). The tangential
+    force is the path's, sum_j K(C_j) slope d(delta_j): `steps` increments, each with the contact at its middle
+    force and the approach at its ends interpolated in F^(2/3) (exact for a sphere on a half-space, for which
+    Ft / Fz = (2/3) tan a). Each increment's stick solve is loaded along the sideways motion and scaled to its
+    displacement along it (the body's small motion across it on an anisotropic contact is left free). Capped by
+    mu Fz (slip). Returns (normals, shears): per press its final Normal (or the ValueError it raised) and Shear."""
+    if not (isinstance(steps, (int, np.integer)) and steps >= 1):
+        raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
+    hs = np.asarray(hs, np.float64)
+    slopes = np.asarray(slopes, np.float64).reshape(len(hs), 2)
+    normals = solve_normal_batch(hs, mm_per_px, shear_mpa, thickness, fzs, reference)
+    shears: list = [None] * len(hs)
+    todo = []
+    for i, n in enumerate(normals):
+        if isinstance(n, ValueError):
+            continue
+        if n.contact.any() and np.hypot(*slopes[i]) > 0:
+            todo.append(i)
+        else:
+            shears[i] = Shear(np.zeros(2), np.zeros(2), False, 0.0, None, None)
+    if not todo:
+        return normals, shears
+    frac = ((np.arange(steps) + 0.5) / steps) ** 1.5  # middle forces: the approach grows ~ F^(2/3)
+    mids = solve_normal_batch(np.repeat(hs[todo], steps, 0), mm_per_px, shear_mpa, thickness,
+                              np.outer([fzs[i] for i in todo], frac).ravel(), reference)
+    loads, contacts, depths = [], [], []
+    for k, i in enumerate(todo):
+        fz, mid = float(fzs[i]), mids[k * steps:(k + 1) * steps]
+        ends = _approach_at_ends(fz * frac, np.array([n.delta for n in mid], float), fz, normals[i].delta, steps)
+        direction = slopes[i] / np.hypot(*slopes[i])
+        for n, d_delta in zip(mid, np.diff(ends)):
+            if n.contact.any() and d_delta > 0:
+                loads.append((k, direction, np.hypot(*slopes[i]) * d_delta))
+                contacts.append(n.contact)
+                depths.append(hold_depth(n, thickness))
+    fields, s = _stick(np.stack(contacts), np.stack([d for _, d, _ in loads]), np.asarray(depths), mm_per_px,
+                       shear_mpa, thickness, reference)
+    total = {k: [np.zeros(2), np.zeros(2), 0.0] for k in range(len(todo))}
+    for (k, direction, move), field, disp in zip(loads, fields, s):
+        scale = move / float(direction @ disp)  # the unit load's displacement along the motion, to the move
+        total[k][0] = total[k][0] + scale * direction
+        total[k][1] = total[k][1] + scale * disp
+        total[k][2] = total[k][2] + scale * field
+    for k, i in enumerate(todo):
+        force, disp, field = total[k]
+        cap, mag = friction * float(fzs[i]), float(np.hypot(*force))
+        slip = mag > cap + 1e-9
+        if mag < _NO_SHEAR:
+            shears[i] = Shear(np.zeros(2), np.zeros(2), False, 0.0, None, None)
+            continue
+        if slip:  # the body slides: the traction saturates at mu Fz along the push (full slide, no partial slip)
+            force, disp, field = (v * (cap / mag) for v in (force, disp, field))
+        shears[i] = _shear(force, disp, slip, field)
+    return normals, shears
 
 
 def shear_bulge(sh: Shear) -> np.ndarray:

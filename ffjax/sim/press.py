@@ -90,18 +90,21 @@ def _check(sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed=0):
 
 def press(shape: Shape | str, sensor: Sensor | str, force=(0.0, 0.0, 1.0), x_mm: float = 0.0,
           y_mm: float = 0.0, yaw_deg: float = 0.0, tilt_deg=(0.0, 0.0), seed: int = 0,
-          size: tuple[int, int] | None = None, noise: bool = True) -> Sample:
+          size: tuple[int, int] | None = None, noise: bool = True, path: str = "shear") -> Sample:
     """Press `shape` into `sensor` with the requested force (N) at a pose; returns the frame and labels.
 
     The penetration is solved so that the gel carries Fz; shear beyond mu * Fz slips and is capped
-    (meta["slip"]). Camera noise comes from `seed` (independent of the background frame's fixed noise);
-    noise=False renders a noiseless frame (then zero force gives exactly sensor.background(size, False)).
+    (meta["slip"]). path="oblique": the paper's press along the tilted tool axis, its shear from the path
+    (request (0, 0, Fz); see `press_many`). Camera noise comes from `seed` (independent of the background
+    frame's fixed noise); noise=False renders a noiseless frame (then zero force gives exactly
+    sensor.background(size, False)).
     The batch of one of `press_batch`.
     """
     shape = get_shape(shape) if isinstance(shape, str) else shape
     sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
     size = render_size_of(sensor, size)
-    s = press_many([shape], sensor, [force], [x_mm], [y_mm], [yaw_deg], [tilt_deg], [seed], size, noise)[0]
+    s = press_many([shape], sensor, [force], [x_mm], [y_mm], [yaw_deg], [tilt_deg], [seed], size, noise,
+                   path=path)[0]
     if isinstance(s, ValueError):
         raise s
     s.background = optics.background(sensor, size, noise)
@@ -132,12 +135,21 @@ def _request(shape: Shape, sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg,
     return _Request(shape, f, pose, int(seed), h_s)
 
 
+PATHS = ("shear", "oblique")
+
+
 def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds, size: tuple[int, int] | None = None,
-               noise: bool = True, reference: bool = False) -> list:
+               noise: bool = True, reference: bool = False, path: str = "shear") -> list:
     """One Sample per press (shapes, by name or Shape, and poses may all differ; one sensor and render size), or
     the ValueError that press refused: the layer solves of all of them run as one batch
     (`mechanics.solve_normal_batch`, `shear_batch`); reference=True runs the numpy reference solves instead (the
-    benchmark's old path)."""
+    benchmark's old path).
+
+    path "shear": pressed to Fz, then the requested (Fx, Fy) applied in stick. path "oblique": the paper's
+    press, the tool moved along its tilted axis until the gel carries Fz, the shear coming from the path
+    (`mechanics.oblique_batch`; request (0, 0, Fz), the tilt sets the push)."""
+    if path not in PATHS:
+        raise ValueError(f"path must be one of {PATHS}, got {path!r}")
     sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
     size = render_size_of(sensor, size)
     shapes = [get_shape(s) if isinstance(s, str) else s for s in shapes]
@@ -152,6 +164,10 @@ def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds,
     for i, args in enumerate(zip(shapes, forces, xs, ys, yaws, tilts, seeds)):
         try:
             reqs[i] = _request(args[0], sensor, *args[1:])
+            if path == "oblique" and reqs[i].force[:2].any():
+                del reqs[i]
+                raise ValueError(f"an oblique press takes its shear from the tilted path: request (0, 0, Fz), got "
+                                 f"{tuple(float(v) for v in args[1])}")
         except ValueError as e:
             out[i] = e
     if not reqs:
@@ -160,26 +176,34 @@ def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds,
     # similar force takes a similar number of iterations (results do not depend on the order)
     reqs = dict(sorted(reqs.items(), key=lambda kv: (kv[1].shape.name, float(kv[1].force[2]))))
     mpp_s = (sdx + sdy) / 2
-    normals = mechanics.solve_normal_batch([r.h_s for r in reqs.values()], mpp_s, gel.shear_mpa, gel.thickness_mm,
-                                           [float(r.force[2]) for r in reqs.values()], reference)
+    heights, fzs = [r.h_s for r in reqs.values()], [float(r.force[2]) for r in reqs.values()]
+    if path == "oblique":
+        slopes = [np.tan(np.radians(r.pose[3])) for r in reqs.values()]
+        normals, by_path = mechanics.oblique_batch(heights, mpp_s, gel.shear_mpa, gel.thickness_mm, gel.friction,
+                                                   fzs, slopes, reference=reference)
+    else:
+        normals = mechanics.solve_normal_batch(heights, mpp_s, gel.shear_mpa, gel.thickness_mm, fzs, reference)
     ok = []
-    for i, nrm in zip(reqs, normals):
+    for k, (i, nrm) in enumerate(zip(reqs, normals)):
         if isinstance(nrm, ValueError):
             out[i] = nrm
         else:
-            ok.append((reqs[i], nrm, i))
+            ok.append((reqs[i], nrm, i, k))
     if not ok:
         return out
-    shears = mechanics.shear_batch([r.force[:2] for r, _, _ in ok], [float(r.force[2]) for r, _, _ in ok],
-                                   np.stack([n.contact for _, n, _ in ok]), mpp_s, gel.shear_mpa, gel.thickness_mm,
-                                   gel.friction, reference,
-                                   [mechanics.hold_depth(n, gel.thickness_mm) for _, n, _ in ok])
-    for (req, nrm, i), sh in zip(ok, shears):
-        out[i] = _sample(req, sensor, size, nrm, sh, noise)
+    if path == "oblique":
+        shears = [by_path[k] for *_, k in ok]
+    else:
+        shears = mechanics.shear_batch([r.force[:2] for r, *_ in ok], [float(r.force[2]) for r, *_ in ok],
+                                       np.stack([n.contact for _, n, *_ in ok]), mpp_s, gel.shear_mpa,
+                                       gel.thickness_mm, gel.friction, reference,
+                                       [mechanics.hold_depth(n, gel.thickness_mm) for _, n, *_ in ok])
+    for (req, nrm, i, _), sh in zip(ok, shears):
+        out[i] = _sample(req, sensor, size, nrm, sh, noise, path)
     return out
 
 
-def _sample(req: _Request, sensor: Sensor, size: tuple[int, int], normal, sh, noise: bool) -> Sample:
+def _sample(req: _Request, sensor: Sensor, size: tuple[int, int], normal, sh, noise: bool, path: str) -> Sample:
     """The frame and labels of one solved press: the solved surface on the render grid, with the body's own
     detail where it touches, carried by the shear, rendered."""
     ssize = _solve_size(sensor)
@@ -208,7 +232,7 @@ def _sample(req: _Request, sensor: Sensor, size: tuple[int, int], normal, sh, no
         "x_mm": pose[0], "y_mm": pose[1], "yaw_deg": pose[2], "tilt_deg": pose[3],
         "penetration_mm": normal.delta, "contact_area_mm2": float(normal.contact.sum() * sdx * sdy),
         "slip": bool(sh.slip), "shear_disp_mm": tuple(float(v) for v in sh.disp_mm),
-        "shear_stiffness_n_per_mm": float(sh.stiffness), "hold_depth_mm": hold,
+        "shear_stiffness_n_per_mm": float(sh.stiffness), "hold_depth_mm": hold, "path": path,
         "requested_force": tuple(float(v) for v in f),
         "mm_per_px": float(mpp), "seed": int(req.seed), "size": size,
     }
@@ -228,13 +252,15 @@ def _carried(depth: np.ndarray, disp_px: np.ndarray, body_px: np.ndarray) -> np.
 
 
 def press_batch(shape, sensor: Sensor | str, forces, x_mm=None, y_mm=None, yaw_deg=None,
-                tilt_deg=None, seeds=None, size=None, noise: bool = True, reference: bool = False) -> dict:
+                tilt_deg=None, seeds=None, size=None, noise: bool = True, reference: bool = False,
+                path: str = "shear") -> dict:
     """N presses on one sensor, their layer solves batched (the dataset path; shares every cached table).
 
     shape: one shape (name or Shape) for all, or a sequence of N. forces (N, 3); poses are (N,) arrays (tilt
     (N, 2)) or None for centred/untilted; seeds (N,) or None (= 0..N-1). Returns {"image" (N,H,W,3) uint8,
     "depth" (N,H,W) float32, "force" (N,3) float32, "background" (H,W,3) uint8, "meta": list of dicts}; the first
-    press the simulator refuses raises its ValueError. reference=True: the numpy reference solves.
+    press the simulator refuses raises its ValueError. reference=True: the numpy reference solves; path: see
+    `press_many`.
     """
     shape = get_shape(shape) if isinstance(shape, str) else shape
     if not isinstance(shape, Shape):
@@ -256,7 +282,8 @@ def press_batch(shape, sensor: Sensor | str, forces, x_mm=None, y_mm=None, yaw_d
     out = {"image": np.empty((n, H, W, 3), np.uint8), "depth": np.empty((n, H, W), np.float32),
            "force": np.empty((n, 3), np.float32), "background": optics.background(sensor, size, noise), "meta": []}
     shapes = [shape] * n if isinstance(shape, Shape) else shape
-    samples = press_many(shapes, sensor, forces, xs, ys, yaws, tilts, [int(v) for v in seeds], size, noise, reference)
+    samples = press_many(shapes, sensor, forces, xs, ys, yaws, tilts, [int(v) for v in seeds], size, noise, reference,
+                         path)
     for i, s in enumerate(samples):
         if isinstance(s, ValueError):
             raise s
