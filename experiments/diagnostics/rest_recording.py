@@ -209,6 +209,7 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
     ap.add_argument("--recording", default=None, help="a real rest recording: DIR/background.png and DIR/tactile/*.png")
     ap.add_argument("--name", default="GelSight Mini (real)", help="the recording's name in the tables")
+    ap.add_argument("--source", default=None, help="where the recording comes from, for the report (default: DIR)")
     ap.add_argument("--fps", type=float, default=30.0, help="frame rate when frame names are not timestamps")
     ap.add_argument("--sensors", nargs="*", default=list(SIM_SENSORS), help="simulated sensors to measure")
     ap.add_argument("--sim-frames", type=int, default=40, help="frames per simulated sensor (default 40)")
@@ -223,7 +224,7 @@ def main(argv=None) -> dict:
     if args.recording:
         frames, background, times = load_recording(args.recording, args.fps)
         res["sources"][args.name] = measure(frames, background, times)
-        res["real"], res["recording"] = args.name, str(Path(args.recording))
+        res["real"], res["recording"] = args.name, args.source or str(Path(args.recording))
         interval = float(np.ptp(times) / (args.sim_frames - 1))  # the simulated frames span the same time
     for key in args.sensors:
         res["sources"][key] = measure(*simulated(key, args.sim_frames, interval))
