@@ -195,8 +195,10 @@ def plot(res: dict, path: Path) -> Path:
                    label=CHANNELS[c])
         ax.set_xticks(x, names, rotation=30, ha="right", fontsize=8)
         ax.set_title(title, fontsize=10)
-    for ax in axes[2:]:  # a marker gel's dots are a fixed pattern ten times a pigment's
-        ax.set_yscale("log")
+    for ax, key in zip(axes[2:], ("fixed_pct", "gradient_pct_per_px")):
+        values = [v for n in names for v in res["sources"][n][key]]
+        if max(values) > 5 * min(values):  # a marker gel's dots are a fixed pattern ten times a pigment's
+            ax.set_yscale("log")
     axes[1].legend(fontsize=7)
     common.stamp(fig, res.get("preset", "native"), [], res["commit"])
     return save_png(fig, Path(path))
