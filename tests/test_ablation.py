@@ -54,10 +54,9 @@ def test_writes_tables_plots_and_schema(smoke_run):
 
 def test_results_match_the_pinned_run(smoke_run):
     """Restructuring must leave the smoke ablation's numbers identical: bitwise against the pin made on this
-    CPU kind, within the measured cross-CPU tolerance against another kind's (tests/_pins.py). Pinned at commit
-    1f6942f (Intel; held within the tolerance since the batched simulator, issue 30) and re-pinned on AMD with the
-    batched simulator; regenerate a pin only for a change meant to alter training or data, and say so in the
-    commit."""
+    CPU kind, within the measured cross-CPU tolerance against another kind's (tests/_pins.py). Re-pinned on an AMD
+    EPYC Zen 1 host for issue 32's simulator (other data: the earlier AMD Zen 3 and Intel pins were removed);
+    regenerate a pin only for a change meant to alter training or data, and say so in the commit."""
     _, out, _, _ = smoke_run
     got = pinned(json.loads((out / "results.json").read_text()))
     own, others = _pins.load("ablation_smoke", got.pop("jax"))

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.diagnostics import publish
+
 RADII_MM = (4.0, 10.0)
 FORCES_N = (2.0, 5.0, 15.0)  # the sphere's press in the simulator that sets each case's approach
 BAND = 0.30
@@ -165,11 +167,7 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     out = cli.check_out(ap, Path(args.out or common.ROOT / "results" / "buried_load_check"))
     res = {"commit": common.git_commit(), **run(args.smoke)}
-    common.write_json(out / "results.json", res)
-    common.write_text(out / "buried_load_check.md", report(res))
-    plot(res, out / "buried_load_check.png")
-    print(report(res))
-    return res
+    return publish(out, "buried_load_check", res, report, plot)
 
 
 if __name__ == "__main__":

@@ -29,6 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from experiments.diagnostics import publish
 from ffjax.sim.optics import FINE_PX as HIGHPASS_PX  # the simulator's patterns are scaled by the same estimator
 
 CHANNELS = ("R", "G", "B")
@@ -230,11 +231,7 @@ def main(argv=None) -> dict:
         interval = float(np.ptp(times) / (args.sim_frames - 1))  # the simulated frames span the same time
     for key in args.sensors:
         res["sources"][key] = measure(*simulated(key, args.sim_frames, interval))
-    common.write_json(out / "results.json", res)
-    common.write_text(out / "rest_recording.md", report(res))
-    plot(res, out / "rest_recording.png")
-    print(report(res))
-    return res
+    return publish(out, "rest_recording", res, report, plot)
 
 
 if __name__ == "__main__":
