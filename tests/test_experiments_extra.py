@@ -55,10 +55,11 @@ def test_tilt_shear_factor_turns_only_the_lean():
     cfg = configs.get("smoke")
     f = next(x for x in stability.factors(cfg) if x.name == "tilt_shear")
     sensor = sim.get_sensor(cfg["data"]["train_sensor"])
-    base, turned = (stability.presses(cfg, f, f.levels.index(a), 12, sensor) for a in (0.0, 180.0))
+    base, turned = (stability.presses(cfg, f, f.levels.index(a), 60, sensor) for a in (0.0, 180.0))
     np.testing.assert_array_equal(base["force"], turned["force"])  # same forces and poses, only the lean moves
     np.testing.assert_array_equal(base["x_mm"], turned["x_mm"])
     np.testing.assert_allclose(turned["tilt_deg"], -base["tilt_deg"], atol=1e-12)
-    # at the nominal level the shear points along the lean, as the dataset samples it
-    t, ft = base["tilt_deg"], base["force"][:, :2]
-    assert np.mean(np.sum(np.sign(t) == np.sign(ft), axis=1) == 2) > 0.6
+    # at the nominal level the shear follows the lean (Fz tan(tilt) plus noise), as the dataset samples it
+    lean = base["force"][:, 2:] * np.tan(np.radians(base["tilt_deg"]))
+    ft = base["force"][:, :2]
+    assert all(np.corrcoef(lean[:, k], ft[:, k])[0, 1] > 0.5 for k in (0, 1))

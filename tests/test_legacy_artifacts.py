@@ -49,10 +49,14 @@ def test_a_legacy_run_is_described_and_resumes(tmp_path):
     assert "sha256" in json.loads((run / "model.json").read_text())  # rewritten in today's form
 
 
-def test_a_legacy_dataset_is_reused_not_refused(tmp_path):
+def test_a_legacy_dataset_opens_and_is_not_taken_for_todays_simulator(tmp_path):
+    """Its files still read; but it was made by an earlier simulator (dataset version 1, before issue 32), so a
+    generate into its folder refuses it, naming the version, rather than reusing it."""
     cfg = configs.get("smoke", EXPECTED["sets"])
-    assert dataset.gen_config(cfg) == json.loads((LEGACY / "data" / "config.json").read_text())
+    legacy = json.loads((LEGACY / "data" / "config.json").read_text())
+    assert {**dataset.gen_config(cfg), "version": legacy["version"]} == legacy  # the same config otherwise
     folder = tmp_path / "data"
     shutil.copytree(LEGACY / "data", folder)
-    dataset._prepare(folder, dataset.gen_config(cfg), force=False)  # same config: kept, nothing deleted
     assert len(open_split(folder / "train")) == 20
+    with pytest.raises(FileExistsError, match="differs in: version"):
+        dataset._prepare(folder, dataset.gen_config(cfg), force=False)

@@ -118,17 +118,17 @@ def test_linear_probe_recovers_linear_target():
 # sha256 of json.dumps(settings(configs.get(preset), kind), sort_keys=True): the cache key of the backbones users
 # already have under data/<preset>/pretrained. A change here retrains every one of them; update the pin only
 # when that is meant (and say so in the commit).
-SETTINGS_SHA256 = {
-    "smoke/vit": "27457f2ba9ff35f6b79b3872faf4dc191aa9a0af60ca4cd821007046e20819e2",
-    "smoke/resnet": "5b1df89d2ca87a3fbca41f8e166186e818ff3bc0bf366fadc97aae01594ab6e9",
-    "quick/vit": "601bb7890956fd3bf4b5075f631073805e5b00ae586bc44e2ebc289a68c539bc",
-    "quick/resnet": "2d74e2618d1de67b486f4197504028a58c190be24168a34333a10301833c5c7d",
-    "full/vit": "601bb7890956fd3bf4b5075f631073805e5b00ae586bc44e2ebc289a68c539bc",
-    "full/resnet": "2d74e2618d1de67b486f4197504028a58c190be24168a34333a10301833c5c7d",
-    "gpu/vit": "386823857779330ee04dfddfc20455452899136d5ac2116dc4ac124969901bb6",
-    "gpu/resnet": "e541c35f0a5411a3bc8fe25160d8d2dcd09f909d19662219cbc3c42c8ed5a199",
-    "paper/vit": "1780434a318ae5a39745910160c63ea5b518ebb7ef1f2763f5801386e5a61e0d",
-    "paper/resnet": "731b4a3c820e7e940f0896bbc9b836fb605a67429c81a5d53b1426aa558a7f09",
+SETTINGS_SHA256 = {  # the pretraining corpus changed (version 2) with issue 32's simulator
+    "smoke/vit": "fbd236b8059809389ff0ceccd6f702c01a681c713fb6665301c8077934cd7b84",
+    "smoke/resnet": "2dbe42058ac07db1c8e6043a7e1cebe923e0eee8d87edc53a155e24e4daf20bf",
+    "quick/vit": "509ca73f90329d784be72da2fd6b6a6505d27a49626d915afddd6be15b595458",
+    "quick/resnet": "77342c61b30ee819d21098eb04e58e37906939d283c5ea27783dc78e316c0185",
+    "full/vit": "509ca73f90329d784be72da2fd6b6a6505d27a49626d915afddd6be15b595458",
+    "full/resnet": "77342c61b30ee819d21098eb04e58e37906939d283c5ea27783dc78e316c0185",
+    "gpu/vit": "7c9bbfec0ca8ac7e0585a618610aed9c483d48b1a82d986221ca7a99d32fd40f",
+    "gpu/resnet": "0522e326f40448d96f1d96350166ac17512775221f534d85a70c0284af1503aa",
+    "paper/vit": "64a4065a70d4910c96cead49c3f434e840d5d30295d7077bb1f0501a9d81e512",
+    "paper/resnet": "dc9c3bbe87932a79e359d467181f57575fce4ad47860143dea64bfb08517e1e7",
 }
 
 
