@@ -28,10 +28,17 @@ SPEC = {
         "train_sensor": Key("mini-1-gel1", choice(*SENSOR_NAMES), late=True),
         "fz_min": Key(0.05, NN, late=True),  # N; Fz is stratified over [fz_min, fz_max] per shape
         "fz_max": Key(15.0, POS),  # N
-        # roll/pitch of a press uniform in +-tilt_max_deg
-        "tilt_max_deg": Key(7.0, num(0, 90, hi_open=True), late=True),
-        "shear_noise": Key(0.06, NN, late=True),  # std of the shear beyond Fz * tan(tilt), as a fraction of Fz
-        "shear_max": Key(2.0, NN),  # N; |Fx|, |Fy| are redrawn above it (the simulator caps at mu * Fz)
+        # how a press loads the gel: "oblique", the paper's press along the tilted tool axis (the shear comes from
+        # the path); "shear": pressed to Fz, then Fz * tan(tilt) + noise applied sideways in stick (before issue 32)
+        "loading": Key("oblique", choice("oblique", "shear"), before="shear"),
+        "path_steps": Key(4, POS_INT),  # oblique: increments of the press's path (4: Ft within ~2% of 16)
+        # roll/pitch of a press uniform in +-tilt_max_deg; 15: the release's Fx, Fy of +-2 N at Fz 15 N (docs/simulator.md)
+        "tilt_max_deg": Key(15.0, num(0, 90, hi_open=True), before=7.0),
+        "shear_noise": Key(0.06, NN, late=True),  # shear: std of the shear beyond Fz * tan(tilt), a fraction of Fz
+        "shear_max": Key(2.0, NN),  # N; shear: |Fx|, |Fy| are redrawn above it (the simulator caps at mu * Fz)
+        "ft_noise": Key(0.005, NN, before=0.0),  # N per axis on the labels: the release's F/T sensor at rest
+        # share of the fine fixed pattern that is pigment on the gel (moves with it); not measurable at rest
+        "pattern_moving": Key(0.5, PROB, before=1.0),
         "shard_size": Key(512, POS_INT),  # presses per .npz shard on disk
         # mm; widens the depth normalization range (train min - eps, max + eps); the release's is 5 depth units
         "depth_eps": Key(0.05, NN, before=0.0),

@@ -5,7 +5,8 @@ from configs.checks import derive
 
 CONFIG = derive(_BASE, {
     "data": {"render_size": (24, 32), "input_size": 32, "train_per_indenter": 12, "val_per_indenter": 4,
-             "unseen_per_object": 4, "sensor_test_per_indenter": 2, "calib_samples": 20, "shard_size": 64},
+             "unseen_per_object": 4, "sensor_test_per_indenter": 2, "calib_samples": 20, "shard_size": 64,
+             "path_steps": 2},
     "model": {
         "vit": {"dim": 32, "heads": 2, "mlp_ratio": 2.0},
         "resnet": {"widths": (8, 16, 16, 32), "blocks": (1, 1, 1, 1), "stem": "small"},

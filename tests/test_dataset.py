@@ -43,13 +43,16 @@ def test_layout_and_labels(root, cfg):
     h, w = d["render_size"]
     assert rec["image"].shape == (w, h, 3) and rec["image"].dtype == np.uint8  # DIGIT is portrait
     assert rec["depth"].shape == (w, h) and rec["depth"].dtype == np.float32
-    np.testing.assert_array_equal(rec["background"], sim.get_sensor("digit").background((w, h)))
+    np.testing.assert_array_equal(rec["background"], dataset.sensor_of("digit", d).background((w, h)))
     train = data.open_split(dataset.split_dir(root, "train"))
-    f = train.forces
-    assert f.dtype == np.float32 and np.all(f[:, 2] > 0) and np.all(f[:, 2] <= d["fz_max"])
-    assert np.all(np.abs(f[:, :2]) <= d["shear_max"] + 1e-6)
-    np.testing.assert_allclose(f[:, 2], train.column("requested_force")[:, 2], rtol=1e-6)
-    # shear follows the tool tilt (pressing along a tilted axis)
+    f, applied = train.forces, train.column("force_applied")
+    assert f.dtype == np.float32 and np.all(applied[:, 2] > 0) and np.all(applied[:, 2] <= d["fz_max"] + 1e-4)
+    np.testing.assert_allclose(applied[:, 2], train.column("requested_force")[:, 2], rtol=1e-6)
+    # the labels are the F/T sensor's reading: what the gel carries plus its noise
+    assert 0.5 * d["ft_noise"] < np.std(f - applied) < 1.5 * d["ft_noise"]
+    # the oblique press: the shear comes from the tilted path, in stick below mu Fz
+    assert d["loading"] == "oblique" and np.all(np.abs(train.column("requested_force")[:, :2]) == 0)
+    assert np.all(np.hypot(applied[:, 0], applied[:, 1]) <= sim.get_sensor("mini-1").gel.friction * applied[:, 2])
     assert np.corrcoef(np.tan(np.radians(train.column("tilt_deg")[:, 0])) * f[:, 2], f[:, 0])[0, 1] > 0.5
 
 
@@ -109,6 +112,33 @@ def test_refused_pose_is_pulled_inwards():
     q = {"force": np.array([[0.1, 0.0, 5.0], [0.0, 0.2, 3.0]]), "x_mm": np.array([x, 1.0]),
          "y_mm": np.zeros(2), "yaw_deg": np.zeros(2), "tilt_deg": np.array([[1.0, 0.0], [0.0, 0.0]]),
          "seed": np.array([3, 4])}
-    s = dataset._press_safe([sim.get_shape("cone")] * 2, sensor, q, (24, 32))
+    s = dataset._press_safe([sim.get_shape("cone")] * 2, sensor, q, (24, 32), {"loading": "shear", "path_steps": 2})
     assert s[0].meta["x_mm"] == pytest.approx(x / 2) and s[0].force[2] == pytest.approx(5.0)
     assert s[1].meta["x_mm"] == 1.0 and s[1].force[2] == pytest.approx(3.0)
+
+
+@pytest.mark.parametrize("loading", ["oblique", "shear"])
+def test_sampling_per_loading(loading):
+    """Oblique: the request is the normal force, the tilt makes the shear. Shear (before issue 32): the requested
+    shear follows Fz tan(tilt), redrawn within +-shear_max."""
+    cfg = configs.get("smoke", {"data.loading": loading})
+    spec = dataset.split_specs(cfg)[0]
+    p = dataset.sample_presses(spec, cfg)
+    f, tilt = p["force"], np.tan(np.radians(p["tilt_deg"]))
+    assert np.all(np.abs(p["tilt_deg"]) <= cfg["data"]["tilt_max_deg"])
+    if loading == "oblique":
+        assert np.all(f[:, :2] == 0)
+    else:
+        assert np.all(np.abs(f[:, :2]) <= cfg["data"]["shear_max"])
+        assert np.corrcoef(tilt[:, 0] * f[:, 2], f[:, 0])[0, 1] > 0.5
+
+
+def test_ft_reading_is_per_press():
+    """The F/T noise of a press comes from its own seed: the same wherever the shard boundaries fall."""
+    f = np.tile([[0.1, -0.2, 3.0]], (6, 1))
+    seeds = np.arange(100, 106)
+    whole = dataset.ft_reading(f, seeds, 0.005)
+    np.testing.assert_array_equal(np.concatenate([dataset.ft_reading(f[:2], seeds[:2], 0.005),
+                                                  dataset.ft_reading(f[2:], seeds[2:], 0.005)]), whole)
+    assert 0 < np.abs(whole - f).max() < 0.05 and dataset.ft_reading(f, seeds, 0.0).tolist() == \
+        f.astype(np.float32).tolist()

@@ -59,7 +59,32 @@ def test_tilt_shear_factor_turns_only_the_lean():
     np.testing.assert_array_equal(base["force"], turned["force"])  # same forces and poses, only the lean moves
     np.testing.assert_array_equal(base["x_mm"], turned["x_mm"])
     np.testing.assert_allclose(turned["tilt_deg"], -base["tilt_deg"], atol=1e-12)
-    # at the nominal level the shear follows the lean (Fz tan(tilt) plus noise), as the dataset samples it
+    # at the nominal level the push follows the lean, as the oblique press's shear does on average
     lean = base["force"][:, 2:] * np.tan(np.radians(base["tilt_deg"]))
-    ft = base["force"][:, :2]
-    assert all(np.corrcoef(lean[:, k], ft[:, k])[0, 1] > 0.5 for k in (0, 1))
+    np.testing.assert_allclose(base["force"][:, :2], stability.PUSH_RATIO * lean)
+    assert stability.loading(cfg, f) == "shear"  # pressed, then pushed: the lean and the push can differ
+    assert stability.loading(cfg, next(x for x in stability.factors(cfg) if x.name == "noise")) == "oblique"
+
+
+def test_pigment_factor_keeps_the_mechanics():
+    """Texture against mechanics: level 1 is the training gel's mechanics with gel 2's pigment, level 2 the pigment
+    frozen (the whole fine pattern the camera's, the same total); the camera and the mechanics never change."""
+    import dataclasses
+
+    import configs
+    from ffjax.sim import dataset
+
+    cfg = configs.get("smoke")
+    nominal = dataset.sensor_of(cfg["data"]["train_sensor"], cfg["data"])
+    own, _ = stability.sensors_for("pigment", 0.0, nominal)
+    other, other_bg = stability.sensors_for("pigment", 1.0, nominal)
+    frozen, _ = stability.sensors_for("pigment", 2.0, nominal)
+    assert own is nominal and other is other_bg
+    mech = lambda s: dataclasses.replace(s.gel, texture_seed=0, pigment=0.0)  # noqa: E731
+    assert mech(other) == mech(frozen) == mech(nominal)
+    assert other.gel.texture_seed == dataset.sensor_of("mini-1-gel2", cfg["data"]).gel.texture_seed \
+        != nominal.gel.texture_seed
+    assert other.gel.pigment > 0 and frozen.gel.pigment == 0
+    total = lambda s: s.gel.pigment ** 2 + s.pixel_pattern ** 2  # noqa: E731
+    assert abs(total(frozen) - total(nominal)) < 1e-12
+    assert dataclasses.replace(other, gel=nominal.gel) == nominal  # the camera side is the training sensor's

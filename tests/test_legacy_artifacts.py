@@ -16,6 +16,9 @@ from ffjax.sim import dataset
 
 LEGACY = Path(__file__).parent / "fixtures" / "legacy"
 EXPECTED = json.loads((LEGACY / "expected.json").read_text())
+# the data keys issue 32 added or changed, at the values the code used when the fixtures were made
+THEN = {f"data.{k}": configs.KEYS[f"data.{k}"].old_value
+        for k in ("loading", "tilt_max_deg", "ft_noise", "pattern_moving", "path_steps")}
 
 
 def _frames():
@@ -42,7 +45,7 @@ def test_a_legacy_run_is_described_and_resumes(tmp_path):
     assert configs.validate(trained.cfg)  # upgraded to a full config of today
     run = tmp_path / "run"
     shutil.copytree(LEGACY / "run", run)
-    cfg = configs.get("smoke", {**EXPECTED["sets"], "train.epochs": 3})
+    cfg = configs.get("smoke", {**EXPECTED["sets"], **THEN, "train.epochs": 3})
     with pytest.warns(UserWarning, match=r"changed config: train.epochs: 2 -> 3$"):  # nothing else differs
         summary = train.train(cfg, "dino_rd", LEGACY / "data", run, resume=True, max_steps=11, progress=False)
     assert summary["steps"] == 11
@@ -52,11 +55,13 @@ def test_a_legacy_run_is_described_and_resumes(tmp_path):
 def test_a_legacy_dataset_opens_and_is_not_taken_for_todays_simulator(tmp_path):
     """Its files still read; but it was made by an earlier simulator (dataset version 1, before issue 32), so a
     generate into its folder refuses it, naming the version, rather than reusing it."""
-    cfg = configs.get("smoke", EXPECTED["sets"])
+    cfg = configs.get("smoke", {**EXPECTED["sets"], **THEN})
     legacy = json.loads((LEGACY / "data" / "config.json").read_text())
-    assert {**dataset.gen_config(cfg), "version": legacy["version"]} == legacy  # the same config otherwise
+    g = dataset.gen_config(cfg)
+    assert g["seed"] == legacy["seed"] and {k: g["data"][k] for k in legacy["data"]} == legacy["data"]
+    assert set(g["data"]) - set(legacy["data"]) == {"loading", "path_steps", "ft_noise", "pattern_moving"}
     folder = tmp_path / "data"
     shutil.copytree(LEGACY / "data", folder)
     assert len(open_split(folder / "train")) == 20
-    with pytest.raises(FileExistsError, match="differs in: version"):
+    with pytest.raises(FileExistsError, match=r"differs in: .*version"):
         dataset._prepare(folder, dataset.gen_config(cfg), force=False)

@@ -94,22 +94,31 @@ def test_a_new_backbone_is_a_module_an_entry_and_a_config_section(monkeypatch):
         registry.Method("bad", "bad", "convnext")
 
 
+_LATER_DATA_KEYS = ("fz_min", "tilt_max_deg", "shear_noise", "train_sensor", "loading", "path_steps", "ft_noise",
+                    "pattern_moving")  # issue 15 gave knobs keys, issue 32 added the oblique press's
+
+
 def _without_new_keys(cfg: dict) -> dict:
-    """The config as it was before issue 15 gave these knobs keys (an older model.json)."""
+    """The config as it was before these data keys existed (an older model.json)."""
     cfg = {**cfg, "data": dict(cfg["data"])}
-    for key in ("fz_min", "tilt_max_deg", "shear_noise", "train_sensor"):
+    for key in _LATER_DATA_KEYS:
         del cfg["data"][key]
     return cfg
 
 
 @pytest.mark.parametrize("preset", configs.PRESETS)
-def test_existing_data_folders_stay_valid(preset):
-    """A data folder's config.json (gen_config) is what it was before the keys existed, so folders written
-    then are reused, not refused as written with another config."""
+def test_old_data_configs_read_as_they_were_made(preset):
+    """A config saved before the data keys existed reads them as the code then used them (the press-then-shear
+    loading, +-7 deg, no F/T noise, the whole fixed pattern on the gel), so its dataset is told apart from today's
+    (gen_config) rather than taken for it."""
     cfg = configs.get(preset)
     g = dataset.gen_config(cfg)
     old = configs.upgrade(_without_new_keys(cfg))  # how a config saved before the keys is read
-    assert g == dataset.gen_config(old)
+    before = {k: configs.KEYS[f"data.{k}"].old_value for k in _LATER_DATA_KEYS}
+    assert before["loading"] == "shear" and before["tilt_max_deg"] == 7.0 and before["ft_noise"] == 0.0
+    assert {k: old["data"][k] for k in _LATER_DATA_KEYS} == before
+    then = dataset.gen_config(configs.get(preset, {f"data.{k}": v for k, v in before.items()}))
+    assert dataset.gen_config(old) == then and then != g
     assert set(g["data"]) == set(dataset.GEN_KEYS)
     assert [s.sensor for s in dataset.split_specs(cfg)] == [s.sensor for s in dataset.split_specs(old)]
 
@@ -136,8 +145,9 @@ def test_old_configs_are_upgraded_in_one_place():
     assert up["data"]["train_sensor"] == "mini-1-gel1" and up["model"]["vit"]["interpolate_offset"] == 0.1
     assert up["train"]["schedule"] == "constant" and up["data"]["depth_eps"] == 0.0  # what the code did then
     assert up["pretrain"]["steps"] == 100 and up["model"]["decoder"]["fast"] is True
-    assert {k: v for k, v in up["data"].items() if k != "depth_eps"} == {k: v for k, v in cfg["data"].items()
-                                                                         if k != "depth_eps"}
+    assert up["data"]["loading"] == "shear" and up["data"]["tilt_max_deg"] == 7.0  # issue 32 changed these
+    same = lambda d: {k: v for k, v in d.items() if k not in ("depth_eps", *_LATER_DATA_KEYS[4:], "tilt_max_deg")}  # noqa: E731
+    assert same(up["data"]) == same(cfg["data"])
     assert configs.upgrade(cfg) == cfg  # a full config is left as it is
     assert configs.validate(up) is up
 

@@ -31,7 +31,8 @@ def make_split(root, cfg: dict, name: str, index: int, per_shape: int) -> tuple[
     spec = sim_dataset.SplitSpec(name, "mini-1-gel1", tuple(sim.INDENTERS), per_shape, index)
     size = tuple(cfg["data"]["render_size"])
     t0 = time.perf_counter()
-    arrays = sim_dataset.render_shard(spec, sim_dataset.sample_presses(spec, cfg), 0, spec.count, size)
+    arrays = sim_dataset.render_shard(spec, sim_dataset.sample_presses(spec, cfg), 0, spec.count, size,
+                                      sim_dataset.gen_config(cfg)["data"])
     rate = spec.count / (time.perf_counter() - t0)
     folder = Path(root) / name
     folder.mkdir(parents=True, exist_ok=True)

@@ -10,10 +10,14 @@ meta), DIR/<split>/background.png, DIR/<split>/split.json, DIR/manifest.json (wr
 Sampling, as the paper's data collection: per shape, Fz is stratified over [fz_min, fz_max] (one
 sample per equal-width bin, shuffled) so each shape's Fz histogram is flat; x, y uniform in a safe
 region that keeps the shape's 15 N footprint on the pad; yaw uniform; roll/pitch uniform within
-+-tilt_max_deg. The robot presses along its tilted tool axis, so the shear is Fz * tan(tilt) plus
-noise (shear_noise * Fz: robot compliance, friction), clipped to +-shear_max; the simulator caps it at
-mu * Fz. The train, val and unseen splits are pressed on data.train_sensor; every sensor of
-sim.SENSOR_NAMES gets a Table II and a calibration split.
++-tilt_max_deg. data.loading "oblique" (the paper's): the robot presses along its tilted tool axis until
+the gel carries Fz, and the shear is what that path gives (`mechanics.oblique_batch`, data.path_steps
+increments); "shear" (before issue 32): pressed to Fz, then Fz * tan(tilt) plus noise (shear_noise * Fz)
+applied sideways, redrawn beyond +-shear_max. Either way the simulator caps the shear at mu * Fz. The
+labels are the force the gel carries plus the F/T sensor's noise (data.ft_noise N per axis, Gaussian, the
+release's sensor at rest). Every sensor carries data.pattern_moving of its fine fixed pattern on the gel
+(`sensors.with_pattern_moving`). The train, val and unseen splits are pressed on data.train_sensor; every
+sensor of sim.SENSOR_NAMES gets a Table II and a calibration split.
 
 Deterministic from cfg["seed"]: every split has its own random stream and its own block of render
 seeds (train, val and test seeds are disjoint). Each shard is written atomically (temp file, fsync,
@@ -46,13 +50,15 @@ from ffjax import sim
 from ffjax.data.images import write_rgb
 from ffjax.files import atomic_write, atomic_write_text, check_writable
 from ffjax.sim import batched
-from ffjax.sim.sensors import MINI_NAMES, SENSOR_NAMES, get_sensor
+from ffjax.sim.sensors import MINI_NAMES, SENSOR_NAMES, get_sensor, with_pattern_moving
 
-VERSION = 2  # 2: the camera's patterns stay put, a real Mini's colour balance and fine pattern (issue 32)
+# 2: the camera's patterns stay put, a real Mini's colour balance and fine pattern; 3: the oblique press, F/T noise
+# on the labels, the moving share of the fixed pattern a key (issue 32)
+VERSION = 3
 # Generation knobs (cfg["data"]): every one decides the bytes on disk
 GEN_KEYS = ("render_size", "train_per_indenter", "val_per_indenter", "unseen_per_object",
             "sensor_test_per_indenter", "calib_samples", "fz_max", "shear_max", "shard_size", "fz_min",
-            "tilt_max_deg", "shear_noise")
+            "tilt_max_deg", "shear_noise", "loading", "path_steps", "ft_noise", "pattern_moving")
 # config.json names the training sensor only when it is not this one, the sensor of every folder written before
 # it was a choice: those folders stay valid
 LEGACY_TRAIN_SENSOR = "mini-1-gel1"
@@ -117,6 +123,12 @@ def sim_fingerprint() -> str:
     return h.hexdigest()[:16]
 
 
+def sensor_of(key: str, data: dict):
+    """The sensor `key` as a dataset (cfg["data"] or gen_config's) simulates it: data.pattern_moving of its fine
+    fixed pattern on the gel."""
+    return with_pattern_moving(get_sensor(key), float(data["pattern_moving"]))
+
+
 def render_size(sensor, size) -> tuple[int, int]:
     """cfg render_size is landscape (H < W); portrait sensors (DIGIT) render it transposed."""
     h, w = sorted(int(s) for s in size)
@@ -152,7 +164,11 @@ def sample_presses(spec: SplitSpec, cfg: dict) -> dict:
         x, y = rng.uniform(-rx, rx, n), rng.uniform(-ry, ry, n)
         yaw = rng.uniform(-180.0, 180.0, n)
         tilt = rng.uniform(-d["tilt_max_deg"], d["tilt_max_deg"], (n, 2))
-        # pushing along the tilted tool axis: the tangential part is Fz * tan(tilt), plus noise
+        if d["loading"] == "oblique":  # the shear comes from the path: the request is the normal force
+            parts.append({"shape_index": np.full(n, si), "force": np.column_stack([np.zeros((n, 2)), fz]),
+                          "x_mm": x, "y_mm": y, "yaw_deg": yaw, "tilt_deg": tilt})
+            continue
+        # pushed sideways after the press: the tangential part is Fz * tan(tilt), plus noise
         base, spread = fz[:, None] * np.tan(np.radians(tilt)), d["shear_noise"] * fz[:, None]
         ft = base + rng.normal(0, 1, (n, 2)) * spread
         for _ in range(20):  # redraw (truncate) rather than clip: no pile-up at +-shear_max
@@ -176,9 +192,9 @@ def sample_presses(spec: SplitSpec, cfg: dict) -> dict:
 _PULLS = ((1.0, True), (0.5, True), (0.25, True), (0.125, False))
 
 
-def _press_safe(shapes, sensor, q: dict, size) -> list:
-    """Samples of the presses `q` (sampled arrays), their layer solves batched; refused poses are pressed again,
-    pulled inwards (_PULLS), in one batch per round."""
+def _press_safe(shapes, sensor, q: dict, size, data: dict) -> list:
+    """Samples of the presses `q` (sampled arrays), loaded as data["loading"], their layer solves batched; refused
+    poses are pressed again, pulled inwards (_PULLS), in one batch per round."""
     n = len(shapes)
     out: list = [None] * n
     todo = list(range(n))
@@ -186,7 +202,7 @@ def _press_safe(shapes, sensor, q: dict, size) -> list:
         tilt = [tuple(q["tilt_deg"][i]) if tilted else (0.0, 0.0) for i in todo]
         got = sim.press_many([shapes[i] for i in todo], sensor, q["force"][todo], q["x_mm"][todo] * scale,
                              q["y_mm"][todo] * scale, q["yaw_deg"][todo], tilt, [int(v) for v in q["seed"][todo]],
-                             size)
+                             size, path=data["loading"], steps=int(data["path_steps"]))
         for i, s in zip(todo, got):
             out[i] = s
         todo = [i for i in todo if isinstance(out[i], ValueError)]
@@ -195,16 +211,26 @@ def _press_safe(shapes, sensor, q: dict, size) -> list:
     raise out[todo[0]]
 
 
-def render_shard(spec: SplitSpec, p: dict, lo: int, hi: int, size) -> dict:
-    """Render presses [lo, hi) of a split (already sampled): the shard's arrays."""
-    sensor = get_sensor(spec.sensor)
+def ft_reading(force, seeds, noise_n: float) -> np.ndarray:
+    """What the F/T sensor reads of the forces (N, 3) the gel carries: each plus Gaussian noise of noise_n N per
+    axis, drawn from the press's render seed (independent of the shard it lands in)."""
+    noise = np.stack([np.random.default_rng([int(s), 0xF7]).normal(0.0, 1.0, 3) for s in seeds]) if len(seeds) \
+        else np.zeros((0, 3))
+    return (np.asarray(force, np.float64) + noise_n * noise).astype(np.float32)
+
+
+def render_shard(spec: SplitSpec, p: dict, lo: int, hi: int, size, data: dict) -> dict:
+    """Render presses [lo, hi) of a split (already sampled) as `data` (gen_config's) says: the shard's arrays.
+    "force" is the label (the F/T reading), "force_applied" what the gel carries."""
+    sensor = sensor_of(spec.sensor, data)
     size = render_size(sensor, size)
     sl = slice(lo, hi)
     q = {k: v[sl] for k, v in p.items()}
     idx_all = q["shape_index"]
-    smp = _press_safe([sim.get_shape(spec.shapes[i]) for i in idx_all], sensor, q, size)
+    smp = _press_safe([sim.get_shape(spec.shapes[i]) for i in idx_all], sensor, q, size, data)
+    applied = np.stack([s.force for s in smp])
     out = {"image": np.stack([s.image for s in smp]), "depth": np.stack([s.depth for s in smp]),
-           "force": np.stack([s.force for s in smp])}
+           "force": ft_reading(applied, q["seed"], float(data["ft_noise"])), "force_applied": applied}
     for k in ("x_mm", "y_mm", "yaw_deg", "penetration_mm", "contact_area_mm2", "tilt_deg", "requested_force",
               "shear_disp_mm", "slip"):
         v = np.array([s.meta[k] for s in smp])
@@ -248,10 +274,10 @@ def _shard_ok(path: Path) -> bool:
 
 
 def _shard_task(args) -> int:
-    spec, p, lo, hi, size, path = args
+    spec, p, lo, hi, size, data, path = args
     cv2.setNumThreads(1)  # one process per core already
     batched.use_disk_cache()  # a worker process: the solves' programs from disk after the first run
-    save_npz(path, render_shard(spec, p, lo, hi, size))
+    save_npz(path, render_shard(spec, p, lo, hi, size, data))
     return hi - lo
 
 
@@ -307,7 +333,7 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
         for stale in folder.glob(".*.tmp*"):  # leftovers of a killed run
             stale.unlink()
         bounds = [(a, min(a + shard, spec.count)) for a in range(0, spec.count, shard)]
-        sensor = get_sensor(spec.sensor)
+        sensor = sensor_of(spec.sensor, g["data"])
         info = {"name": spec.name, "sensor": spec.sensor, "sensor_name": sensor.name, "gel": sensor.gel_id,
                 "shapes": list(spec.shapes), "per_shape": spec.per_shape, "count": spec.count,
                 "shard_counts": [b - a for a, b in bounds], "render_size": list(render_size(sensor, size)),
@@ -321,7 +347,8 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
             write_rgb(folder / "background.png", sensor.background(render_size(sensor, size)))
         if todo:
             p = sample_presses(spec, cfg)
-            tasks += [(spec, {k: v[a:b] for k, v in p.items()}, 0, b - a, size, folder / f"shard_{k:05d}.npz")
+            tasks += [(spec, {k: v[a:b] for k, v in p.items()}, 0, b - a, size, g["data"],
+                       folder / f"shard_{k:05d}.npz")
                       for k, a, b in todo]
     manifest_file = out / "manifest.json"
     if not tasks and manifest_file.is_file():

@@ -198,6 +198,7 @@ class Shear:
     stiffness: float  # |F_t| / |s| along the applied force, N/mm (0 without shear)
     field: np.ndarray | None  # (H, W, 2) tangential displacement of the gel surface on the pad grid, mm
     bulge: np.ndarray | None  # (H, W) surface displacement it causes, mm (+ = into the gel, - = rising)
+    hold_mm: float = 0.0  # depth of the plane the body holds the gel on (`hold_depth`), mm
 
 
 def shear(ft, fz: float, contact: np.ndarray, mm_per_px: float, shear_mpa: float, thickness: float,
@@ -239,7 +240,7 @@ def shear_batch(fts, fzs, contacts, mm_per_px: float, shear_mpa: float, thicknes
         slip = mag > cap + 1e-9
         applied = ft * (cap / mag) if slip else ft
         if mag < _NO_SHEAR or not contacts[i].any():  # below a nN nothing moves a pixel (and float32 is 0)
-            out[i] = Shear(applied, np.zeros(2), slip, 0.0, None, None)
+            out[i] = Shear(applied, np.zeros(2), slip, 0.0, None, None, float(depths[i]))
         else:
             todo.append((i, applied, slip))
     if not todo:
@@ -247,15 +248,16 @@ def shear_batch(fts, fzs, contacts, mm_per_px: float, shear_mpa: float, thicknes
     fields, s = _stick(contacts[[i for i, _, _ in todo]], np.stack([a for _, a, _ in todo]),
                        depths[[i for i, _, _ in todo]], mm_per_px, shear_mpa, thickness, reference)
     for j, (i, applied, slip) in enumerate(todo):
-        out[i] = _shear(applied, s[j], slip, fields[j])
+        out[i] = _shear(applied, s[j], slip, fields[j], float(depths[i]))
     return out
 
 
-def _shear(force, disp, slip: bool, fields) -> Shear:
-    """A Shear from the force applied, the body's displacement and the fields (3, H, W) = (ux, uy, depth)."""
+def _shear(force, disp, slip: bool, fields, hold_mm: float) -> Shear:
+    """A Shear from the force applied, the body's displacement, the fields (3, H, W) = (ux, uy, depth) and the
+    depth the body holds the gel at."""
     return Shear(np.asarray(force, np.float64), np.asarray(disp, np.float64), slip,
                  float(np.hypot(*force) / np.hypot(*disp)), np.stack(fields[:2], -1).astype(np.float32),
-                 fields[2].astype(np.float32))
+                 fields[2].astype(np.float32), hold_mm)
 
 
 def _stick(contacts, forces, depths, mm_per_px: float, shear_mpa: float, thickness: float, reference: bool):
@@ -350,12 +352,13 @@ def oblique_batch(hs, mm_per_px: float, shear_mpa: float, thickness: float, fric
         force, disp, field = total[k]
         cap, mag = friction * float(fzs[i]), float(np.hypot(*force))
         slip = mag > cap + 1e-9
+        hold = hold_depth(normals[i], thickness)  # where the final contact holds the gel
         if mag < _NO_SHEAR:
-            shears[i] = Shear(np.zeros(2), np.zeros(2), False, 0.0, None, None)
+            shears[i] = Shear(np.zeros(2), np.zeros(2), False, 0.0, None, None, hold)
             continue
         if slip:  # the body slides: the traction saturates at mu Fz along the push (full slide, no partial slip)
             force, disp, field = (v * (cap / mag) for v in (force, disp, field))
-        shears[i] = _shear(force, disp, slip, field)
+        shears[i] = _shear(force, disp, slip, field, hold)
     return normals, shears
 
 

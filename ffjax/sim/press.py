@@ -90,12 +90,13 @@ def _check(sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed=0):
 
 def press(shape: Shape | str, sensor: Sensor | str, force=(0.0, 0.0, 1.0), x_mm: float = 0.0,
           y_mm: float = 0.0, yaw_deg: float = 0.0, tilt_deg=(0.0, 0.0), seed: int = 0,
-          size: tuple[int, int] | None = None, noise: bool = True, path: str = "shear") -> Sample:
+          size: tuple[int, int] | None = None, noise: bool = True, path: str = "shear",
+          steps: int = mechanics.PATH_STEPS) -> Sample:
     """Press `shape` into `sensor` with the requested force (N) at a pose; returns the frame and labels.
 
     The penetration is solved so that the gel carries Fz; shear beyond mu * Fz slips and is capped
     (meta["slip"]). path="oblique": the paper's press along the tilted tool axis, its shear from the path
-    (request (0, 0, Fz); see `press_many`). Camera noise comes from `seed` (independent of the background
+    (request (0, 0, Fz), in `steps` increments; see `press_many`). Camera noise comes from `seed` (independent of the background
     frame's fixed noise); noise=False renders a noiseless frame (then zero force gives exactly
     sensor.background(size, False)).
     The batch of one of `press_batch`.
@@ -104,7 +105,7 @@ def press(shape: Shape | str, sensor: Sensor | str, force=(0.0, 0.0, 1.0), x_mm:
     sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
     size = render_size_of(sensor, size)
     s = press_many([shape], sensor, [force], [x_mm], [y_mm], [yaw_deg], [tilt_deg], [seed], size, noise,
-                   path=path)[0]
+                   path=path, steps=steps)[0]
     if isinstance(s, ValueError):
         raise s
     s.background = optics.background(sensor, size, noise)
@@ -139,7 +140,8 @@ PATHS = ("shear", "oblique")
 
 
 def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds, size: tuple[int, int] | None = None,
-               noise: bool = True, reference: bool = False, path: str = "shear") -> list:
+               noise: bool = True, reference: bool = False, path: str = "shear",
+               steps: int = mechanics.PATH_STEPS) -> list:
     """One Sample per press (shapes, by name or Shape, and poses may all differ; one sensor and render size), or
     the ValueError that press refused: the layer solves of all of them run as one batch
     (`mechanics.solve_normal_batch`, `shear_batch`); reference=True runs the numpy reference solves instead (the
@@ -147,7 +149,7 @@ def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds,
 
     path "shear": pressed to Fz, then the requested (Fx, Fy) applied in stick. path "oblique": the paper's
     press, the tool moved along its tilted axis until the gel carries Fz, the shear coming from the path
-    (`mechanics.oblique_batch`; request (0, 0, Fz), the tilt sets the push)."""
+    (`mechanics.oblique_batch` in `steps` increments; request (0, 0, Fz), the tilt sets the push)."""
     if path not in PATHS:
         raise ValueError(f"path must be one of {PATHS}, got {path!r}")
     sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
@@ -163,11 +165,10 @@ def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds,
     reqs = {}
     for i, args in enumerate(zip(shapes, forces, xs, ys, yaws, tilts, seeds)):
         try:
-            reqs[i] = _request(args[0], sensor, *args[1:])
-            if path == "oblique" and reqs[i].force[:2].any():
-                del reqs[i]
+            if path == "oblique" and np.asarray(args[1], float).reshape(-1)[:2].any():
                 raise ValueError(f"an oblique press takes its shear from the tilted path: request (0, 0, Fz), got "
-                                 f"{tuple(float(v) for v in args[1])}")
+                                 f"{tuple(float(v) for v in np.asarray(args[1]).reshape(-1))}")
+            reqs[i] = _request(args[0], sensor, *args[1:])
         except ValueError as e:
             out[i] = e
     if not reqs:
@@ -180,7 +181,7 @@ def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds,
     if path == "oblique":
         slopes = [np.tan(np.radians(r.pose[3])) for r in reqs.values()]
         normals, by_path = mechanics.oblique_batch(heights, mpp_s, gel.shear_mpa, gel.thickness_mm, gel.friction,
-                                                   fzs, slopes, reference=reference)
+                                                   fzs, slopes, steps, reference)
     else:
         normals = mechanics.solve_normal_batch(heights, mpp_s, gel.shear_mpa, gel.thickness_mm, fzs, reference)
     ok = []
@@ -226,7 +227,7 @@ def _sample(req: _Request, sensor: Sensor, size: tuple[int, int], normal, sh, no
     image = optics.render(sensor, size, depth, disp_px, req.seed if noise else None)
     f, pose = req.force, req.pose
     applied = np.array([sh.force[0], sh.force[1], f[2]], dtype=np.float32)
-    hold = mechanics.hold_depth(normal, sensor.gel.thickness_mm) if sh.field is not None else 0.0
+    hold = sh.hold_mm if sh.field is not None else 0.0
     meta = {
         "shape": req.shape.name, "sensor": sensor.name, "gel": sensor.gel_id, "sensor_key": sensor.key,
         "x_mm": pose[0], "y_mm": pose[1], "yaw_deg": pose[2], "tilt_deg": pose[3],
@@ -253,13 +254,13 @@ def _carried(depth: np.ndarray, disp_px: np.ndarray, body_px: np.ndarray) -> np.
 
 def press_batch(shape, sensor: Sensor | str, forces, x_mm=None, y_mm=None, yaw_deg=None,
                 tilt_deg=None, seeds=None, size=None, noise: bool = True, reference: bool = False,
-                path: str = "shear") -> dict:
+                path: str = "shear", steps: int = mechanics.PATH_STEPS) -> dict:
     """N presses on one sensor, their layer solves batched (the dataset path; shares every cached table).
 
     shape: one shape (name or Shape) for all, or a sequence of N. forces (N, 3); poses are (N,) arrays (tilt
     (N, 2)) or None for centred/untilted; seeds (N,) or None (= 0..N-1). Returns {"image" (N,H,W,3) uint8,
     "depth" (N,H,W) float32, "force" (N,3) float32, "background" (H,W,3) uint8, "meta": list of dicts}; the first
-    press the simulator refuses raises its ValueError. reference=True: the numpy reference solves; path: see
+    press the simulator refuses raises its ValueError. reference=True: the numpy reference solves; path, steps: see
     `press_many`.
     """
     shape = get_shape(shape) if isinstance(shape, str) else shape
@@ -283,7 +284,7 @@ def press_batch(shape, sensor: Sensor | str, forces, x_mm=None, y_mm=None, yaw_d
            "force": np.empty((n, 3), np.float32), "background": optics.background(sensor, size, noise), "meta": []}
     shapes = [shape] * n if isinstance(shape, Shape) else shape
     samples = press_many(shapes, sensor, forces, xs, ys, yaws, tilts, [int(v) for v in seeds], size, noise, reference,
-                         path)
+                         path, steps)
     for i, s in enumerate(samples):
         if isinstance(s, ValueError):
             raise s
