@@ -96,6 +96,18 @@ def _replot_pareto(results: dict, folder) -> None:
     pareto.write_all({**results, "markdown": pareto.markdown(results)}, folder)
 
 
+def _replot_pattern(results: dict, folder) -> None:
+    from experiments import pattern_share
+
+    pattern_share.write_all(results, folder)
+
+
+def _pattern_args(preset: str, work) -> list:
+    """The ablation's runs at the preset's share, NEW_CELL_SEEDS at the others; smoke one other share, one method."""
+    small = ["--shares", "0.5", "1", "--methods", "dino_rd"] if preset == "smoke" else []
+    return [*_trains_seeds(preset, work), *small]
+
+
 def _replot_bench(results: dict, folder) -> None:
     from experiments.bench import report
 
@@ -160,6 +172,10 @@ EXPERIMENTS = (
                "Does the depth head help? DINO's error against the depth-loss weight beta/alpha",
                _has("per_beta"), _replot_sweep, args=_trains_seeds,
                reuses="ablation", figures=("experiments/tables.py", "experiments/style.py")),
+    Experiment("pattern_share", "experiments.pattern_share",
+               "Table II when none, half or all of the sensor's fine fixed pattern is the gel's pigment (a share no "
+               "frame at rest can measure)", _has("per_share", "nominal_share"), _replot_pattern,
+               args=_pattern_args, reuses="ablation", figures=("experiments/style.py",)),
     Experiment("pareto", "experiments.pareto",
                "Speed against accuracy: error against latency, training throughput and size, per method and size",
                _has("cells", "fronts"), _replot_pareto, args=_trains_seeds, reuses="ablation",
@@ -201,6 +217,10 @@ EXPERIMENTS = (
                "Where a body in stick holds the gel: the layer's stick solve against a finite-element model",
                _has("cases", "all_within_band"), _replot_probe("buried_load_check"),
                numbers=("experiments/diagnostics",), in_pipeline=False, takes_common_flags=False),
+    Experiment("low_force", "experiments.diagnostics.low_force",
+               "How well can a frame tell Fz at light loads on wide contacts, and what do models read there?",
+               _has("physics", "render_size"), _replot_probe("low_force"), numbers=("experiments/diagnostics",),
+               in_pipeline=False, takes_common_flags=False),
     Experiment("faults", "tests.reliability.faults",
                "What holds and what fails when a user or a fault misuses the tools", _has("kills_per_part"),
                numbers=("tests/reliability",), in_pipeline=False),

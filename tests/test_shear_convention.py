@@ -78,3 +78,23 @@ def test_shear_probe_physics_report(tmp_path):
     # the pigment (marker) warp is isotropic: the x/y difference comes from the LED layout, not the pipeline
     assert 0.8 < rows[("mini-1-gel1", "as built", "pigment", "sphere_10mm")]["ratio_y_over_x"] < 1.25
     assert 0.8 < rows[("mini-1-gel1", "equal4", "all", "sphere_10mm")]["ratio_y_over_x"] < 1.25
+    # the pigment's grain is finer than a 48x64 pixel: its share of a shear's image change grows with the render size
+    for key in ("mini-1-gel1", "mini-1-gel2"):
+        share = {tuple(r["size"]): r["pigment_share"] for r in res["physics"]["resolution"] if r["sensor"] == key}
+        assert 0 < share[(48, 64)] < share[(240, 320)] < 1
+    assert "pigment share" in (tmp_path / "report.md").read_text()
+
+
+def test_low_force_physics(tmp_path):
+    """experiments.diagnostics.low_force (physics part) at the smoke size: every load leaves a trace on the frame that
+    grows with Fz, and the bound on Fz from one frame is finite; the report and figure are written."""
+    from experiments.diagnostics import low_force
+
+    res = low_force.main(["--preset", "smoke", "--out", str(tmp_path)])
+    for body in low_force.BODIES:
+        rows = [r for r in res["physics"] if r["body"] == body]
+        assert [r["fz"] for r in rows] == list(low_force.LOADS_N)
+        approach = [r["approach_mm"] for r in rows]
+        assert all(a < b for a, b in zip(approach, approach[1:])) and rows[0]["change_max"] > 0
+        assert all(0 < r["crb_n"] < np.inf for r in rows)
+    assert (tmp_path / "low_force.png").stat().st_size > 0 and "Cramer-Rao" in (tmp_path / "low_force.md").read_text()

@@ -6,6 +6,7 @@
     python -m experiments.diagnostics.shear_probe [--data DIR] [--runs RUN_DIR ...]  # is shear visible, on which axis
     python -m experiments.diagnostics.rest_recording --recording DIR  # a real sensor at rest against the simulator's
     python -m experiments.diagnostics.buried_load_check              # the stick's hold against finite elements
+    python -m experiments.diagnostics.low_force [--data DIR] [--runs RUN_DIR ...]  # Fz at light loads, wide contacts
 
 They are kept because docs/results.md and docs/experiments.md cite their results (docs/results/*_probe-*/,
 layer_check-*/); they are not part of the paper's experiments, and nothing else in experiments/ runs them

@@ -127,7 +127,28 @@ def physics() -> dict:
     # it); the imprint of a sharp body stays where the body is and outweighs the drag, and flat faces and rings
     # shade their edges in ways a single translation does not describe, so the check uses that sphere
     return {"rows": rows, "sign_ok": all(_sign_ok(r["presses"]) for r in rows
-                                         if r["source"] == "all" and r["shape"] == "sphere_10mm")}
+                                         if r["source"] == "all" and r["shape"] == "sphere_10mm"),
+            "resolution": resolution()}
+
+
+RESOLUTIONS = ((48, 64), (120, 160), (240, 320))
+
+
+def resolution() -> list:
+    """The pigment's share of a 1 N shear's image change against the render size (the pigment's grain is finer
+    than a 48x64 pixel, so its share grows with resolution): gels 1 and 2 of unit 1, the 10 mm sphere, each source
+    alone, the input at the render's width."""
+    rows = []
+    for key in ("mini-1-gel1", "mini-1-gel2"):
+        for size in RESOLUTIONS:
+            e = {}
+            for source in ("pigment", "bulge"):
+                with only(source):
+                    r = matched(key, "sphere_10mm", size=size, input_size=size[1])
+                e[source] = (r["energy_fx"] + r["energy_fy"]) / 2
+            rows.append({"sensor": key, "size": list(size), "energy_pigment": e["pigment"],
+                         "energy_bulge": e["bulge"], "pigment_share": e["pigment"] / max(sum(e.values()), 1e-12)})
+    return rows
 
 
 def _sign_ok(p: dict) -> bool:
@@ -201,6 +222,14 @@ def report(res: dict) -> str:
                      f"({py[0]:+.2f}, {py[1]:+.2f}) |")
     lines += ["", "Sign/axis convention on the spheres (+Fx -> +x columns, +Fy -> +y rows): "
               f"{'OK' if res['physics']['sign_ok'] else 'BROKEN'}"]
+    if res["physics"].get("resolution"):
+        lines += ["", "## The pigment's share of a shear's image change, by render size", "",
+                  "The 10 mm sphere, each source alone (the pigment carried by the gel; the surface's shape: the gel "
+                  "piled up ahead, stretched behind), the input at the render's width; share = E(pigment) / "
+                  "(E(pigment) + E(shape)).", "", "| sensor | render size | E(pigment) | E(shape) | pigment share |",
+                  "|---|---|---|---|---|"]
+        lines += [f"| {r['sensor']} | {r['size'][0]}x{r['size'][1]} | {r['energy_pigment']:.4f} | "
+                  f"{r['energy_bulge']:.4f} | {r['pigment_share']:.2f} |" for r in res["physics"]["resolution"]]
     p = res.get("probes")
     if p:
         lines += ["", "## Ridge probes, val MAE (N) Fx / Fy / Fz", "",

@@ -1,0 +1,213 @@
+"""Table II at each share of the fixed pattern that moves with the gel: how much of a sensor's fine fixed pattern is
+the gel's pigment (it moves under shear) and how much the camera's (it stays) cannot be measured from frames at
+rest, so the methods are trained and tested in worlds where 0, 0.5 and 1 of it is pigment.
+
+    python -m experiments.pattern_share --preset {smoke,quick,full} [--shares 0 0.5 1] [--methods dino_rd resnet_rd]
+                                        [--seeds N] [--ablation DIR] [--data DIR] [--out DIR]
+
+Each share is its own dataset (`data.pattern_moving`; the preset's share is the preset's own dataset, the others
+sibling folders DATA-pattern<share>) and its own trained runs; the preset's share reuses the ablation's runs (and
+all their seeds). Scored on Table II's nine GelSight units x gels: the mean error, and per gel the error of the
+shear (Fx, Fy) and of Fz, where a model that reads the gel's own pattern shows as a shear read on gel 1 only.
+Writes OUT/results.json, pattern_share.md, pattern_share.csv, pattern_share.png.
+"""
+
+from __future__ import annotations
+
+import copy
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from experiments import common, kernel, style, tables
+from experiments import paper_numbers as P
+from ffjax import registry
+
+DEFAULT_SHARES = (0.0, 0.5, 1.0)
+DEFAULT_METHODS = ("dino_rd", "resnet_rd")
+GELS = (1, 2, 3)
+METRICS = {"table2": "Table II mean (9 units x gels)",
+           **{f"shear_gel{g}": f"shear (Fx, Fy) on gel {g}" for g in GELS},
+           **{f"fz_gel{g}": f"Fz on gel {g}" for g in GELS}}
+_SHEAR = tuple(f"shear_gel{g}" for g in GELS)
+
+
+def scores(ev: dict) -> dict:
+    """A run's numbers from its evaluation (eval.json "result"): Table II's mean, per gel the shear and Fz errors."""
+    t2 = ev["table2"]
+    out = {"table2": float(np.mean([t2[s]["nl1"] for s in P.SENSORS]))}
+    for g in GELS:
+        gel = [t2[s] for s in P.SENSORS if s.endswith(f"gel{g}")]
+        out[f"shear_gel{g}"] = float(np.mean([r["nl1_axes"][:2] for r in gel]))
+        out[f"fz_gel{g}"] = float(np.mean([r["nl1_axes"][2] for r in gel]))
+    return out
+
+
+def data_folder(cfg: dict, data_dir, share: float) -> Path:
+    """The dataset of one share: the preset's own (the ablation's) at the preset's share, else a sibling folder."""
+    base = Path(data_dir or common.ROOT / "data" / cfg["preset"]).absolute()
+    return base if share == float(cfg["data"]["pattern_moving"]) else base.with_name(f"{base.name}-pattern{share:g}")
+
+
+def main(argv=None) -> dict:
+    ap = common.base_parser(__doc__.strip().splitlines()[0],
+                            costs={"quick": "~2 datasets and 2 methods x 2 shares of training beyond the ablation"})
+    ap.add_argument("--shares", type=float, nargs="+", default=list(DEFAULT_SHARES),
+                    help="shares of the fine fixed pattern on the gel, each in [0, 1]")
+    ap.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), choices=registry.names(),
+                    help="registry methods to train at every share")
+    ap.add_argument("--seeds", type=int, default=None, help="seeds per method and share (default: the preset's)")
+    ap.add_argument("--ablation", default=None,
+                    help="ablation results folder whose finished runs are reused (default: results/ablation-<preset>)")
+    args = ap.parse_args(argv)
+    if any(not 0 <= s <= 1 for s in args.shares):
+        ap.error(f"--shares must each be in [0, 1], got {args.shares}")
+    cfg = common.config_from_args(ap, args)
+    out = Path(args.out or common.ROOT / "results" / f"pattern_share-{args.preset}").absolute()
+    abl = common.ablation_folder(ap, args.ablation, args.preset)
+    results = run(cfg, args.methods, sorted(set(args.shares)), common.n_seeds(ap, args, cfg), out, abl, args.data,
+                  args.force, not args.quiet)
+    print(results["finding"])
+    print(f"\nwrote {out}/results.json, pattern_share.md, pattern_share.csv, pattern_share.png")
+    return results
+
+
+def run(cfg, methods, shares, n_seeds, out, ablation_dir=None, data_dir=None, force=False, progress=True) -> dict:
+    out = Path(out).absolute()
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    nominal = float(cfg["data"]["pattern_moving"])
+    timings: dict = {"data_s": {}, "train_s": {}, "eval_s": {}}
+    reuse_from = None if force else ablation_dir
+    roots, backbones, per_share = {}, {}, {}
+    for share in sorted(shares, key=lambda s: s != nominal):  # the preset's own data first: it holds the backbones
+        cell_cfg = copy.deepcopy(cfg)
+        cell_cfg["data"]["pattern_moving"] = float(share)
+        t = time.perf_counter()
+        roots[share] = common.ensure_data(cell_cfg, data_folder(cfg, data_dir, share), progress=progress)
+        timings["data_s"][f"{share:g}"] = round(time.perf_counter() - t, 1)
+        home = next(iter(roots.values()))  # pretraining reads no dataset: one backbone per kind for every share
+        rows = {}
+        for m in methods:
+            spec = registry.get(m)
+            if spec.pretrained and spec.backbone not in backbones:
+                backbones[spec.backbone] = kernel.pretrained_backbone(cfg, spec.backbone, home, force, progress)
+            runs, per_seed = [], []
+            seeds = kernel.seeds_for(cell_cfg, spec, n_seeds, roots[share], reuse_from)
+            for seed in seeds:
+                r = kernel.run(cell_cfg, spec, seed, roots[share], out / f"share{share:g}",
+                               backbone=lambda: backbones[spec.backbone], reuse_from=reuse_from, force=force,
+                               progress=progress)
+                timings["train_s"].setdefault(f"{m}@{share:g}", []).append(r.train_s)
+                timings["eval_s"].setdefault(f"{m}@{share:g}", []).append(r.eval_s)
+                per_seed.append(scores(r.result))
+                runs.append(str(r.dir))
+            rows[m] = {"seeds": seeds, "run_dirs": runs, "per_seed": per_seed,
+                       **{k: common.mean_std([s[k] for s in per_seed]) for k in METRICS}}
+        per_share[f"{share:g}"] = {"share": float(share), "data": str(roots[share]), "methods": rows}
+    timings["total_s"] = round(time.perf_counter() - t0, 1)
+    results = {"preset": cfg["preset"], "commit": common.git_commit(), "seeds": kernel.seeds(cfg, n_seeds),
+               "timings": timings, "methods": list(methods), "shares": [float(s) for s in shares],
+               "nominal_share": nominal, "per_share": per_share, "metrics": METRICS,
+               "metric": "normalized L1 % (mean |error| / training label range; shear: mean over Fx and Fy)",
+               "config": cfg}
+    results["finding"] = finding(results)
+    write_all(results, out)
+    return results
+
+
+def _cell(results: dict, share: str, m: str) -> dict:
+    return results["per_share"][share]["methods"][m]
+
+
+def finding(results: dict) -> str:
+    """What the shares change, per method: Table II's mean and the shear read off gel 1 against gels 2-3, each
+    gap beside the seed spreads it must exceed."""
+    lines = []
+    shares = list(results["per_share"])
+    for m in results["methods"]:
+        cells = [_cell(results, s, m) for s in shares]
+        t2 = ", ".join(f"{s}: {common.fmt(c['table2'], 1)}" for s, c in zip(shares, cells))
+        gaps = [np.mean([c[f"shear_gel{g}"]["mean"] for g in GELS[1:]]) - c["shear_gel1"]["mean"] for c in cells]
+        # the yardstick: the largest seed spread of any cell with 2 or more seeds (one seed has none of its own)
+        spreads = [c[k]["std"] for c in cells if len(c["per_seed"]) >= 2 for k in ("table2", *_SHEAR)]
+        noise = f"seed std up to {max(spreads):.1f}" if spreads else "one seed per cell: no seed spread measured"
+        lines.append(f"- {style.name(m)}: Table II mean % by share {t2}; the shear error on gels 2-3 minus that on "
+                     f"gel 1 (points), by share: {', '.join(f'{s}: {g:+.1f}' for s, g in zip(shares, gaps))} "
+                     f"({noise}).")
+    return "Moving share of the fixed pattern (0: all camera, 1: all pigment):\n" + "\n".join(lines)
+
+
+def _table(results: dict) -> tuple[list, list, list]:
+    header = ["share", "method", "seeds"] + list(METRICS.values())
+    rows, csv_rows = [], []
+    for s, cell in results["per_share"].items():
+        for m, v in cell["methods"].items():
+            rows.append([s, style.name(m), len(v["per_seed"])] + [common.fmt(v[k], 1) for k in METRICS])
+            csv_rows.append([cell["share"], m, len(v["per_seed"])] + [x for k in METRICS
+                                                                       for x in (v[k]["mean"], v[k]["std"])])
+    csv_header = ["share", "method", "seeds"] + [f"{k}_{x}" for k in METRICS for x in ("mean", "std")]
+    return header, rows, [csv_header, csv_rows]
+
+
+def write_all(results: dict, out: Path) -> None:
+    header, rows, (csv_header, csv_rows) = _table(results)
+    text = (f"# Table II by the moving share of the fixed pattern (preset {results['preset']}, commit "
+            f"{results['commit'][:12]})\n\nEach share is its own dataset and its own trained models; "
+            f"{results['metric']}, mean ± std over seeds (± only over 2 or more). The preset's share is "
+            f"{results['nominal_share']:g}.\n\n" + common.md_table(header, rows) + "\n" + results["finding"]
+            + "\n\n![pattern share](pattern_share.png)\n")
+    common.write_text(out / "pattern_share.md", text)
+    common.write_csv(out / "pattern_share.csv", csv_header, csv_rows)
+    plot(results, out / "pattern_share.png")
+    common.write_json(out / "results.json", results)
+
+
+def plot(results: dict, path: Path) -> Path:
+    """Left: Table II's mean against the share, per method. Right: the shear error per gel against the share
+    (solid gel 1, dashed gels 2 and 3). Dots are seeds; a hollow marker is one seed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    shares = [c["share"] for c in results["per_share"].values()]
+    keys = list(results["per_share"])
+    fig, (a0, a1) = plt.subplots(1, 2, figsize=(9.5, 3.8))
+    lines = {1: "-", 2: "--", 3: ":"}
+    for m in results["methods"]:
+        c, mk = style.colour(m), style.marker(m)
+        cells = [_cell(results, s, m) for s in keys]
+        for ax, metric, ls in [(a0, "table2", "-")] + [(a1, f"shear_gel{g}", lines[g]) for g in GELS]:
+            ax.plot(shares, [v[metric]["mean"] for v in cells], ls=ls, color=c, zorder=2)
+            for x, v in zip(shares, cells):  # mean ± std over 2+ seeds (dots: the seeds); hollow: one seed
+                multi = len(v["per_seed"]) >= 2
+                ax.errorbar([x], [v[metric]["mean"]], yerr=[v[metric]["std"]] if multi else None, fmt=mk, color=c,
+                            mfc=c if multi else "white", capsize=3, zorder=3)
+                if multi:
+                    ax.scatter([x] * len(v["per_seed"]), [s[metric] for s in v["per_seed"]], s=9, color="k",
+                               alpha=0.45, zorder=4)
+        a0.plot([], [], mk, color=c, label=style.name(m))
+    a0.plot([], [], "o", color="0.3", label="mean ± std (2+ seeds)")
+    a0.plot([], [], "o", color="0.3", mfc="white", label="1 seed")
+    a0.scatter([], [], s=9, color="k", alpha=0.45, label="each seed")
+    for g in GELS:
+        a1.plot([], [], lines[g], color="0.3", label=f"gel {g}")
+    for ax, title in ((a0, "Table II mean, 9 GelSight units x gels"), (a1, "shear (Fx, Fy) error per gel")):
+        ax.set_xticks(shares)
+        ax.set_xlabel("share of the fixed pattern on the gel (moves with it)")
+        ax.set_ylabel("normalized L1 error (%)")
+        ax.set_title(title, fontsize=9)
+        ax.legend(fontsize=7)
+    fig.suptitle(f"Table II by the moving share of the fixed pattern (preset {results['preset']})", fontsize=10)
+    seeds = sorted({int(s) for c in results["per_share"].values() for v in c["methods"].values() for s in v["seeds"]})
+    common.stamp(fig, results["preset"], seeds, results.get("commit", "?"))
+    return tables.save_png(fig, Path(path))
+
+
+if __name__ == "__main__":
+    from ffjax import cli
+
+    sys.exit(cli.run(main))
