@@ -199,3 +199,13 @@ def test_number_sources_are_the_code_a_command_runs_less_its_drawing():
     assert "ffjax/tasks/pushing.py" in catalog.get("downstream").number_sources
     assert "experiments/downstream_report.py" not in catalog.get("downstream").number_sources
     assert "ffjax" in catalog.get("faults").number_sources
+
+
+def test_each_diagnostic_is_told_apart_and_stale_only_by_what_it_runs():
+    """low_force's results.json (a list under "physics") is not taken for shear_probe's (a dict); a diagnostic's
+    numbers come from the files its module runs, not from every diagnostic in the folder."""
+    assert catalog.kind_of({"physics": [], "render_size": [48, 64]}).name == "low_force"
+    assert catalog.kind_of({"physics": {"rows": [], "sign_ok": True}}).name == "shear_probe"
+    sources = catalog.get("buried_load_check").number_sources
+    assert "experiments/diagnostics/plane_strain_fe.py" in sources
+    assert "experiments/diagnostics/low_force.py" not in sources
