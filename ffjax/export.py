@@ -152,6 +152,18 @@ class ExportedPredictor:
         images, background = np.asarray(images), np.asarray(background)
         if images.ndim == 3:
             images = images[None]
+        for what, x, ndim in (("images", images, 4), ("background", background, 3)):
+            if x.ndim != ndim or x.shape[-1] != 3:
+                hint = " (RGBA/BGRA: drop the alpha channel)" if x.ndim == ndim and x.shape[-1] == 4 else ""
+                raise ValueError(f"{what} must be {'(B, H, W, 3)' if ndim == 4 else '(H, W, 3)'} RGB for {self.path}, "
+                                 f"got shape {x.shape}{hint}")
+        if not len(images):  # no frames, no forces (as Predictor.predict)
+            self.last_out_of_range = self.last_nonfinite = np.zeros((0,), bool)
+            return np.zeros((0, 3), np.float32)
+        batch = self.exported.in_avals[0].shape[0]
+        if isinstance(batch, int) and images.shape[0] != batch:
+            raise ValueError(f"{self.path} takes batches of exactly {batch} frame(s), got {images.shape[0]}: call it "
+                             f"per {batch} frame(s), or export with --batch 0 for any batch size")
         fs = self.info.get("frame_size")
         if fs and (tuple(images.shape[1:3]) != tuple(fs) or tuple(background.shape[:2]) != tuple(fs)):
             raise ValueError(f"frames {images.shape[1:3]} / background {background.shape[:2]} must be "

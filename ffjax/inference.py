@@ -240,7 +240,9 @@ class Predictor:
         self.background_issues = background_check(bg, self.trained.background_stats)
         for msg in self.background_issues:
             warnings.warn(msg, BackgroundWarning, stacklevel=2)
-        self.background = bg
+        # a copy, read-only: a camera buffer the caller reuses must not change every later prediction
+        self.background = bg.copy()
+        self.background.setflags(write=False)
 
     def preprocess(self, images, bgr: bool = False) -> np.ndarray:
         """Raw frames -> the model input (N, S, S, 3) float32, exactly as in training. Sets
@@ -301,6 +303,9 @@ class Predictor:
         if self._depth_fn is None:
             raise ValueError(f"method {self.method!r} has no depth head; use a *_rd checkpoint for depth")
         x = self.preprocess(images, bgr)
+        if not len(x):  # no frames, no depth maps (as predict gives (0, 3))
+            h, w = self.background.shape[:2] if frame else x.shape[1:3]
+            return np.zeros((0, h, w), np.float32)
         d = fdata.depth_to_mm(np.asarray(self._depth_fn(self.variables, x)), self.stats)
         return np.stack([self._to_frame(m) for m in d]) if frame else d
 

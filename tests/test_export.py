@@ -65,6 +65,15 @@ def test_fixed_batch_export(setup, tmp_path):
     fn = export.load(path)
     assert json.loads((tmp_path / "f1.bin.json").read_text())["batch"] == 1
     np.testing.assert_allclose(fn(b["image"][0], b["background"]), pred.predict(b["image"][:1]), atol=TOL)
+    # issue 33 (7): a wrong batch, RGBA or no frames get errors naming the file and the fix, not jax's shape errors
+    with pytest.raises(ValueError, match=r"f1.bin takes batches of exactly 1 frame.*--batch 0"):
+        fn(b["image"][:2], b["background"])
+    rgba = np.concatenate([b["image"][:1], np.zeros_like(b["image"][:1, ..., :1])], -1)
+    with pytest.raises(ValueError, match=r"images must be \(B, H, W, 3\).*alpha"):
+        fn(rgba, b["background"])
+    with pytest.raises(ValueError, match=r"background must be \(H, W, 3\)"):
+        fn(b["image"][:1], b["background"][..., 0])
+    assert fn(b["image"][:0], b["background"]).shape == (0, 3)
 
 
 def test_a_damaged_or_missing_export_names_its_file(setup, tmp_path):

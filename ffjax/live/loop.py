@@ -1,11 +1,16 @@
 """The live loop, `run(pred, frames, ...)`: the background taken from the stream (re-taken on key 'b' or
-SIGUSR1), every frame predicted and flagged, optionally smoothed, printed, shown, and recorded to
-forces.csv / annotated.mp4 (an earlier recording in the folder is kept aside as forces.1.csv, ...)."""
+SIGUSR1, and optionally refreshed from frames without contact: `ffjax.live.background`), every frame predicted
+and flagged, optionally smoothed, printed, shown, and recorded to forces.csv / annotated.mp4 (an earlier
+recording in the folder is kept aside as forces.1.csv, ...). A full disk stops the recording with one error
+naming the file; forces.csv holds whole rows only."""
 
 from __future__ import annotations
 
 import contextlib
 import csv
+import errno
+import io
+import shutil
 import signal
 import threading
 import time
@@ -16,9 +21,13 @@ import cv2
 import numpy as np
 
 from ffjax import inference
+from ffjax.errors import WriteError
 from ffjax.files import folder_lock
+from ffjax.live.background import BackgroundRefresh
 from ffjax.live.sources import CameraLost
 from ffjax.live.view import Window, annotate
+
+REFRESH_EVERY = 10  # quiet frames between two refreshes of the predictor's background (each one is checked)
 
 
 def resizer(spec, pred):
@@ -37,14 +46,18 @@ def resizer(spec, pred):
 
 
 def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=None, warmup=0, bg_frames=1,
-        background=None, fps_cap=None, print_every=1, max_frames=None, resize=None, log=print) -> dict:
+        background=None, fps_cap=None, print_every=1, max_frames=None, resize=None, log=print,
+        refresh: dict | None = None) -> dict:
     """Drive `pred` over `frames` (iterable of (t, rgb, label)); returns a summary dict.
 
     Frames before `warmup` are dropped; the next `bg_frames` are averaged into the background (unless
-    `background` is given) and then predicted like every later frame. A None/empty frame is skipped and
-    counted; a CameraLost from the source ends the loop cleanly (summary "stopped": "camera_lost", "error").
-    Dark, saturated or background-mismatched frames are still predicted, logged when the issue starts, and
-    counted in summary "flagged". forces.csv is line-buffered, so a crash or kill loses at most one row."""
+    `background` is given) and then predicted like every later frame. refresh ({"threshold": counts, "frames":
+    n}, see `ffjax.live.background`): the background follows the frames that show no contact, handed to the
+    predictor every REFRESH_EVERY quiet frames. A None/empty frame is skipped and counted; a CameraLost from the
+    source ends the loop cleanly (summary "stopped": "camera_lost", "error"), so does a full disk ("disk_full",
+    the file named). Dark, saturated or background-mismatched frames are still predicted, logged when the issue
+    starts, and counted in summary "flagged". forces.csv is written a whole row at a time, unbuffered, so a
+    crash, a kill or a full disk leaves whole rows only."""
     resize_fn = resizer(resize, pred)
     retake = {"flag": background is None}
     if background is not None:
@@ -59,6 +72,9 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
     out = Path(out) if out is not None else None
     lock = contextlib.ExitStack()
     n_done, n_oor, skipped, pending = 0, 0, 0, []
+    follow = None  # the BackgroundRefresh once a background is there
+    refreshes = 0
+    csv_path = None
     lat, rate, t_start, t_prev, t_first = [], None, time.perf_counter(), None, None
     empty, flagged, last_issue, stopped, error = 0, {}, "", "end", None
     try:
@@ -77,6 +93,8 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                     continue
                 bg = np.mean([p[1] for p in pending], axis=0).round().astype(np.uint8)
                 pred.set_background(bg)
+                if follow is not None:
+                    follow.reset(bg)
                 retake["flag"] = False
                 if smoother is not None:
                     smoother.reset()
@@ -116,14 +134,15 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                     # earlier run's files as they were (and a new run moves them aside, never truncates);
                     # one live loop per --out (a second would move the first's files aside mid-run)
                     lock.enter_context(folder_lock(out, "live recording"))
-                    # line-buffered: a kill loses at most one row
-                    csv_file = open(_keep_old(out / "forces.csv", log), "w", newline="", buffering=1)
-                    rows = csv.writer(csv_file)
-                    rows.writerow(["t", "fx", "fy", "fz", "out_of_range", "frame"]
-                                  + (["fx_raw", "fy_raw", "fz_raw"] if smoother else []))
+                    # unbuffered, one write per row: a kill or a full disk leaves whole rows only
+                    csv_path = _keep_old(out / "forces.csv", log)
+                    csv_file = open(csv_path, "wb", buffering=0)
+                    rows = True
+                    _write_row(csv_file, csv_path, ["t", "fx", "fy", "fz", "out_of_range", "frame"]
+                               + (["fx_raw", "fy_raw", "fz_raw"] if smoother else []))
                 if rows is not None:
-                    rows.writerow([f"{t_i:.4f}", *(f"{v:.5f}" for v in force), int(oor), lab]
-                                  + ([f"{v:.5f}" for v in raw] if smoother else []))
+                    _write_row(csv_file, csv_path, [f"{t_i:.4f}", *(f"{v:.5f}" for v in force), int(oor), lab]
+                               + ([f"{v:.5f}" for v in raw] if smoother else []))
                 if print_every and n_done % print_every == 0:
                     log(f"t={t_i:9.3f}s  Fx={force[0]:+7.3f}  Fy={force[1]:+7.3f}  Fz={force[2]:+7.3f} N"
                         + ("  [NON-FINITE]" if pred.last_nonfinite[0] else "  [OUT OF RANGE]" if oor else "")
@@ -135,6 +154,8 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                             writer = cv2.VideoWriter(str(_keep_old(out / "annotated.mp4", log)),
                                                      cv2.VideoWriter_fourcc(*"mp4v"),
                                                      float(fps_cap or 25.0), (vis.shape[1], vis.shape[0]))
+                        # OpenCV's writer fails a frame with a warning and goes on: check the room first
+                        _room_for(out / "annotated.mp4", 4 * vis.nbytes)
                         writer.write(vis)
                     if window is not None:
                         key = window.show(vis)
@@ -142,6 +163,14 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                             raise KeyboardInterrupt
                         if key == ord("b"):
                             retake["flag"] = True
+                if refresh and not retake["flag"]:  # the light drifts: follow it on frames without contact
+                    follow = follow or BackgroundRefresh(pred.background, **refresh)
+                    new = follow.update(f_i)
+                    if new is not None and follow.quiet % REFRESH_EVERY == 0:
+                        with warnings.catch_warnings():  # checked once, when the background was taken
+                            warnings.simplefilter("ignore", inference.BackgroundWarning)
+                            pred.set_background(new)
+                        refreshes += 1
             if max_frames is not None and n_done >= max_frames:
                 stopped = "max_frames"
                 break
@@ -152,6 +181,8 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
     except CameraLost as e:  # the source gave up reconnecting: stop here, everything so far is written
         stopped, error = "camera_lost", str(e)
         log(f"stopping: {e}")
+    except WriteError as e:  # a full disk: stop recording, whole rows and the video up to here are kept
+        stopped, error = "disk_full", str(e)
     finally:
         if writer is not None:
             writer.release()
@@ -170,11 +201,38 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                "background_taken": pred.background is not None, "stopped": stopped, "error": error,
                "dropped": empty + int(getattr(frames, "dropped", 0)),
                "reconnects": int(getattr(frames, "reconnected", 0)),
-               "flagged": flagged}
+               "flagged": flagged, "csv": str(csv_path) if csv_path else None,
+               "background_refreshes": refreshes, "quiet_frames": follow.quiet if follow else 0}
     if n_done == 0 and pred.background is None:
         log("no frame was predicted: the source ended before a background was taken "
             f"(warmup {warmup}, bg-frames {bg_frames})")
     return summary
+
+
+def _write_row(f, path: Path, values) -> None:
+    """One CSV row in one write; on a failed or short write the file is cut back to its last whole row and a
+    WriteError names it."""
+    line = io.StringIO()
+    csv.writer(line).writerow(values)
+    data = line.getvalue().encode()
+    pos = f.tell()
+    try:
+        if f.write(data) != len(data):
+            raise OSError(errno.ENOSPC, "short write")
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            f.truncate(pos)
+        raise WriteError(errno.ENOSPC if e.errno is None else e.errno,
+                         f"{path}: cannot write ({e.strerror or e}); recording stopped, the rows before are "
+                         "kept") from e
+
+
+def _room_for(path: Path, nbytes: int) -> None:
+    """WriteError naming `path` when its disk has less than nbytes free."""
+    free = shutil.disk_usage(path.parent).free
+    if free < nbytes:
+        raise WriteError(errno.ENOSPC, f"{path}: no space left on the device ({free} bytes free); recording "
+                                       "stopped, the video up to here is kept")
 
 
 def _keep_old(path: Path, log=print) -> Path:

@@ -17,6 +17,15 @@ Each frame prints `t  Fx Fy Fz  [OUT OF RANGE]  rate` (every --print-every frame
 (default 25) for --images. --fps caps the loop rate (sleeps); --smooth adds an EMA or One-Euro filter
 (see ffjax.live.filters). --resize HxW|auto resizes frames (auto: the checkpoint's frame size).
 
+The background follows a drifting light (--refresh-background, on by default for --camera, off for files:
+a recording replays the same): each frame without a contact moves it 1/--refresh-frames (50) of the way to
+that frame; a frame is taken for one without contact when its difference to the background, less each channel's
+uniform shift, stays below --refresh-threshold (3) counts everywhere once smoothed over 2 px (see
+ffjax.live.background). A real GelSight Mini's LEDs drift by up to 3.5 counts in 3 minutes after start-up.
+
+A full disk stops the recording with one error naming the file (exit 1); forces.csv keeps whole rows only.
+A source that gives no frame to predict (an empty video) is an error (exit 1), and nothing is written.
+
 Camera faults: a failed read (dropped frame) is skipped and counted; --max-drops (30) failed reads in a row,
 or a read that raises, count as a disconnect: the camera is re-opened up to --reconnects (5) times, waiting
 --reconnect-wait (0.5 s) doubling to at most 8 s. If that fails the loop stops, forces.csv (line-buffered)
@@ -30,7 +39,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ffjax import inference
+from ffjax import cli, inference
 from ffjax.data.images import read_rgb
 from ffjax.files import check_output
 from ffjax.live import filters
@@ -65,6 +74,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-frames", type=int, default=None, help="stop after this many predictions")
     p.add_argument("--print-every", type=int, default=1, help="print every Nth frame (0: never)")
     p.add_argument("--which", default="best", choices=("best", "latest"))
+    p.add_argument("--refresh-background", default="auto", choices=("auto", "on", "off"),
+                   help="follow a drifting light on frames without contact (auto: on for --camera)")
+    p.add_argument("--refresh-threshold", type=float, default=3.0,
+                   help="counts: a frame whose smoothed difference to the background stays below is without contact")
+    p.add_argument("--refresh-frames", type=int, default=50, help="quiet frames the refreshed background averages")
     cam = p.add_argument_group("camera faults (--camera)")
     cam.add_argument("--max-drops", type=int, default=30, help="failed reads in a row that count as a "
                      "disconnect (single failed reads are skipped and counted)")
@@ -75,9 +89,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    a = build_parser().parse_args(argv)
+    ap = build_parser()
+    a = ap.parse_args(argv)
+    if a.refresh_threshold <= 0 or a.refresh_frames < 1:
+        ap.error("--refresh-threshold must be > 0 and --refresh-frames >= 1")
     if a.out:  # recordings already there are kept aside, never replaced; but never inside what is read
         check_output(a.out, reads=[a.checkpoint, a.images], force=True)
+        cli.check_out(ap, a.out)  # a read-only or impossible folder: a usage error naming --out, before the camera
     fs = tuple(int(v) for v in a.frame_size.lower().split("x")) if a.frame_size else None
     pred = inference.load(a.checkpoint, a.which, frame_size=fs)
     smoother = filters.parse(a.smooth)
@@ -98,12 +116,19 @@ def main(argv=None) -> int:
     print(f"ffjax.live: {pred.method} ({pred.trained.kind}), frames {pred.frame_size[0]}x{pred.frame_size[1]} "
           f"RGB, training force range {_fmt(pred.force_min)}..{_fmt(pred.force_max)} N"
           + (f", filter {smoother!r}" if smoother else ""), flush=True)
+    follow = a.refresh_background == "on" or (a.refresh_background == "auto" and a.camera is not None)
     summary = run(pred, frames, out=a.out, headless=a.headless, smoother=smoother, warmup=warmup,
                   bg_frames=bg_frames, background=background, fps_cap=a.fps, print_every=a.print_every,
-                  max_frames=a.max_frames, resize=a.resize, log=lambda s: print(s, flush=True))
+                  max_frames=a.max_frames, resize=a.resize, log=lambda s: print(s, flush=True),
+                  refresh={"threshold": a.refresh_threshold, "frames": a.refresh_frames} if follow else None)
+    if summary["frames"] == 0 and summary["stopped"] == "end":
+        source = a.video or a.images or f"camera {a.camera}"
+        return cli.fail(f"{source}: no frame to predict (the source is empty or ended before a background was "
+                        f"taken: warmup {warmup}, bg-frames {bg_frames}); nothing written")
     print(f"{summary['frames']} frames in {summary['wall_s']:.1f} s ({summary['rate_hz']:.1f} Hz after the first), "
           f"model {summary['predict_ms_median'] or 0:.2f} ms/frame median, "
-          f"{summary['out_of_range']} out of range" + (f"; wrote {a.out}/forces.csv" if a.out else ""))
+          f"{summary['out_of_range']} out of range" + (f"; wrote {summary['csv']}" if summary["csv"] else "")
+          + (f"; background refreshed {summary['background_refreshes']} times" if follow else ""))
     faults = [f"{summary['dropped']} dropped frames"] * bool(summary["dropped"]) + \
         [f"{summary['reconnects']} reconnects"] * bool(summary["reconnects"]) + \
         [f"{n} {k}" for k, n in summary["flagged"].items()]
@@ -112,4 +137,6 @@ def main(argv=None) -> int:
     if summary["stopped"] == "camera_lost":
         print(f"error: {summary['error']}; forces up to the loss are in the CSV", file=sys.stderr, flush=True)
         return 3
+    if summary["stopped"] == "disk_full":
+        return cli.fail(summary["error"])
     return 0 if summary["frames"] else 1

@@ -154,3 +154,29 @@ def test_background_png_beside_a_bundle_is_the_reference(tmp_path):
     p = inference.load(tmp_path / "cal")
     with pytest.warns(inference.BackgroundWarning, match="another sensor"):
         p.set_background(sensor_bg("mini-1"))
+
+
+def test_set_background_keeps_its_own_copy():
+    """Issue 33 (1): a camera buffer reused after set_background must not change later predictions."""
+    p = inference.Predictor(tiny_checkpoint(sensor_bg("mini-1")))
+    buf = sensor_bg("mini-1").copy()
+    frame = pressed(buf)
+    p.set_background(buf)
+    before = p.predict(frame)
+    buf[:] = 0  # the caller's next camera read lands in the same buffer
+    np.testing.assert_array_equal(p.predict(frame), before)
+    with pytest.raises(ValueError, match="read-only"):
+        p.background[0, 0, 0] = 1
+
+
+def test_no_frames_give_no_depth_maps():
+    """Issue 33 (7): predict_depth on 0 frames returns (0, H, W), as predict returns (0, 3)."""
+    spec = registry.get("dino_rd")
+    t = tiny_checkpoint(sensor_bg("mini-1"))
+    model = models.build(t.cfg["model"], spec, SIZE)
+    variables = model.init(jax.random.PRNGKey(0), jnp.zeros((1, SIZE, SIZE, 3)), train=False)
+    p = inference.Predictor(store.Trained(t.cfg, spec, t.stats, SIZE, (H, W), "argument", "run", "memory", variables))
+    p.set_background(sensor_bg("mini-1"))
+    none = np.zeros((0, H, W, 3), np.uint8)
+    assert p.predict(none).shape == (0, 3)
+    assert p.predict_depth(none).shape == (0, H, W) and p.predict_depth(none, frame=False).shape == (0, SIZE, SIZE)

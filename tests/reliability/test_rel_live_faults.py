@@ -146,3 +146,123 @@ def test_a_second_live_recording_into_a_busy_out_folder_is_refused(pred, tmp_pat
         live.run(pred, iter([(0.0, BG, 0)]), out=tmp_path, background=BG, print_every=0, log=lambda m: None)
     assert (tmp_path / "forces.csv").read_text() == "t,fx,fy,fz\n0.0,1,2,3\n"  # the holder's file untouched
     assert sorted(p.name for p in tmp_path.iterdir()) == [".lock", "forces.csv"]
+
+
+class _Usage:
+    def __init__(self, free):
+        self.free = free
+
+
+def test_a_full_disk_stops_the_recording_with_whole_rows(pred, tmp_path, monkeypatch):
+    """Issue 33 (6): the disk fills while the video is written: the loop stops with one error naming the file,
+    forces.csv holds whole rows only (OpenCV's writer would have failed frame after frame with a warning)."""
+    from ffjax.live import loop as live_loop
+
+    free = iter([10**9] * 3)
+    monkeypatch.setattr(live_loop.shutil, "disk_usage", lambda p: _Usage(next(free, 100)))
+    stream = ((i / 10, BG, i) for i in range(10))
+    s = live.run(pred, stream, out=tmp_path, background=BG, print_every=0, log=lambda m: None)
+    assert s["stopped"] == "disk_full" and "annotated.mp4: no space left" in s["error"]
+    got = rows(tmp_path / "forces.csv")
+    assert len(got) == 4 and all(len(r) == 6 and None not in r.values() for r in got)
+
+
+def test_a_failed_csv_write_leaves_whole_rows(tmp_path):
+    """A write that lands half a row and then fails (ENOSPC): the file is cut back to its last whole row and the
+    error names it."""
+    import errno
+
+    from ffjax.errors import WriteError
+    from ffjax.live import loop as live_loop
+
+    path = tmp_path / "forces.csv"
+
+    class HalfFull:
+        def __init__(self):
+            self.f = open(path, "wb", buffering=0)
+            self.writes = 0
+
+        def write(self, data):
+            self.writes += 1
+            if self.writes == 3:  # half the row reaches the disk, then it is full
+                self.f.write(data[: len(data) // 2])
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return self.f.write(data)
+
+        def tell(self):
+            return self.f.tell()
+
+        def truncate(self, pos):
+            return self.f.truncate(pos)
+
+    f = HalfFull()
+    live_loop._write_row(f, path, ["t", "fx"])
+    live_loop._write_row(f, path, ["0.1000", "1.00000"])
+    with pytest.raises(WriteError, match=r"forces.csv: cannot write \(No space left on device\)"):
+        live_loop._write_row(f, path, ["0.2000", "2.00000"])
+    f.f.close()
+    assert path.read_bytes() == b"t,fx\r\n0.1000,1.00000\r\n"
+
+
+def test_cli_full_disk_and_nothing_to_predict_are_one_error_line(ckpt, tmp_path, monkeypatch, capsys):
+    """Issue 33 (6, 7): a full disk exits 1 with one error naming the file; a source that ends before a background
+    was taken exits 1 with an error line and writes nothing (it used to claim a forces.csv)."""
+    from ffjax.live import loop as live_loop
+
+    store.save_bundle(tmp_path / "model", ckpt)
+    dev = FakeDevice("f" * 6)
+    monkeypatch.setattr(live.sources.cv2, "VideoCapture", dev.open)
+    monkeypatch.setattr(live_loop.shutil, "disk_usage", lambda p: _Usage(100))
+    base = ["--checkpoint", str(tmp_path / "model"), "--headless", "--print-every", "0"]
+    code = live.main([*base, "--camera", "0", "--out", str(tmp_path / "out"), "--warmup", "0", "--bg-frames", "1"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len([e for e in err if e.startswith("error:")]) == 1
+    assert "annotated.mp4: no space left on the device" in err[-1]
+    assert len(rows(tmp_path / "out" / "forces.csv")) == 1  # the row before the video frame that did not fit
+    monkeypatch.undo()
+    video = tmp_path / "two.mp4"
+    w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (W, H))
+    for _ in range(2):
+        w.write(np.ascontiguousarray(BG[..., ::-1]))
+    w.release()
+    code = live.main([*base, "--video", str(video), "--out", str(tmp_path / "empty"), "--warmup", "5"])
+    captured = capsys.readouterr()
+    assert code == 1 and "two.mp4: no frame to predict" in captured.err and "nothing written" in captured.err
+    assert "wrote" not in captured.out and not (tmp_path / "empty" / "forces.csv").exists()
+
+
+def test_cli_an_out_that_cannot_be_written_is_a_usage_error(ckpt, tmp_path, capsys):
+    """Issue 33 (7): an --out that cannot be a folder (under a file; read-only disks alike) is refused before the
+    camera opens, exit 2 naming --out."""
+    store.save_bundle(tmp_path / "model", ckpt)
+    (tmp_path / "notes.txt").write_text("a file")
+    with pytest.raises(SystemExit) as e:
+        live.main(["--checkpoint", str(tmp_path / "model"), "--camera", "0", "--out",
+                   str(tmp_path / "notes.txt" / "rec")])
+    assert e.value.code == 2 and "--out" in capsys.readouterr().err
+
+
+def test_the_background_follows_a_drifting_light_but_not_a_contact(pred):
+    """Issue 33: a synthetic sequence whose LEDs dim by 4.5% (a real Mini's red over 3 minutes) with a pressed
+    contact in the middle: with the refresh the background follows the drift and ignores the contact; without it
+    the offset stays."""
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[:H, :W]
+    disc = ((yy - H // 2) ** 2 + (xx - W // 2) ** 2 < 25)[..., None]
+    n, touching = 200, range(80, 100)
+
+    def frames():
+        for i in range(n):
+            f = BG * (1 - 0.045 * i / (n - 1)) + rng.normal(0, 1.5, BG.shape) + 40 * disc * (i in touching)
+            yield i / 25, np.clip(f.round(), 0, 255).astype(np.uint8), i
+
+    def run(refresh):
+        p = inference.Predictor(pred.trained)
+        return p, live.run(p, frames(), background=BG, print_every=0, log=lambda m: None, refresh=refresh)
+
+    followed, s = run({"threshold": 3.0, "frames": 20})
+    assert s["quiet_frames"] == n - len(touching) and s["background_refreshes"] == (n - len(touching)) // 10
+    end = BG * (1 - 0.045)
+    assert np.abs(followed.background - end).mean() < 1.0  # within a count of the drifted light
+    stuck, _ = run(None)
+    assert np.abs(stuck.background - end).mean() > 4.0  # the start-up background: 4.5% off
