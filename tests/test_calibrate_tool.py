@@ -154,3 +154,13 @@ def test_split_indices_seeded_and_disjoint():
     assert len(hold) == 2 and not set(fit) & set(hold) and sorted([*fit, *hold]) == list(range(10))
     assert np.array_equal(hold, tool.split_indices(10, 0.2, seed=1)[1])
     assert len(tool.split_indices(1, 0.2, 0)[1]) == 0
+
+
+def test_calibrate_refuses_an_out_it_cannot_write_before_any_work(tmp_path, capsys):
+    """Issue 33 (7): an --out that cannot be written (under a file here; a read-only disk alike) is a usage error
+    naming --out (exit 2), before the checkpoint or the data are read."""
+    (tmp_path / "notes.txt").write_text("a file")
+    with pytest.raises(SystemExit) as e:
+        tool.main(["--checkpoint", str(tmp_path / "ck"), "--data", str(tmp_path / "d.csv"),
+                   "--out", str(tmp_path / "notes.txt" / "out")])
+    assert e.value.code == 2 and "--out" in capsys.readouterr().err

@@ -185,7 +185,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    a = build_parser().parse_args(argv)
+    ap = build_parser()
+    a = ap.parse_args(argv)
+    # where --out goes must be writable: a usage error naming --out (exit 2) before any work, not an errno at the end
+    cli.check_out(ap, Path(a.out).absolute().parent)
     try:
         calibrate(a.checkpoint, a.data, a.out, a.layers, a.steps, a.lr, a.holdout, a.seed, a.background,
                   a.batch_size, a.which, a.force)
