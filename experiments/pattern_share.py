@@ -98,7 +98,8 @@ def run(cfg, methods, shares, n_seeds, out, ablation_dir=None, data_dir=None, fo
             seeds = kernel.seeds_for(cell_cfg, spec, n_seeds, roots[share], reuse_from)
             for seed in seeds:
                 r = kernel.run(cell_cfg, spec, seed, roots[share], out / f"share{share:g}",
-                               backbone=lambda: backbones[spec.backbone], reuse_from=reuse_from, force=force,
+                               backbone=lambda: backbones[spec.backbone],  # noqa: B023 (called in this pass)
+                               reuse_from=reuse_from, force=force,
                                progress=progress)
                 timings["train_s"].setdefault(f"{m}@{share:g}", []).append(r.train_s)
                 timings["eval_s"].setdefault(f"{m}@{share:g}", []).append(r.eval_s)

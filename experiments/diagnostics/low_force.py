@@ -183,7 +183,7 @@ def plot(res: dict, path: Path) -> Path:
            title="what one frame can tell (noise-limited)")
     ax.set_xticks(LOADS_N, [f"{f:g}" for f in LOADS_N])
     ax.legend(fontsize=7)
-    for k, (run, m) in enumerate(models.items(), start=1):
+    for k, (run, m) in enumerate(models.items(), start=1):  # noqa: B007 (one panel per run)
         ax = axes[0, k]
         for i, b in enumerate(BODIES):
             rows = [r for r in m["rows"] if r["body"] == b]

@@ -96,8 +96,8 @@ def press(shape: Shape | str, sensor: Sensor | str, force=(0.0, 0.0, 1.0), x_mm:
 
     The penetration is solved so that the gel carries Fz; shear beyond mu * Fz slips and is capped
     (meta["slip"]). path="oblique": the paper's press along the tilted tool axis, its shear from the path
-    (request (0, 0, Fz), in `steps` increments; see `press_many`). Camera noise comes from `seed` (independent of the background
-    frame's fixed noise); noise=False renders a noiseless frame (then zero force gives exactly
+    (request (0, 0, Fz), in `steps` increments; see `press_many`). Camera noise comes from `seed` (independent of
+    the background frame's fixed noise); noise=False renders a noiseless frame (then zero force gives exactly
     sensor.background(size, False)).
     The batch of one of `press_batch`.
     """
