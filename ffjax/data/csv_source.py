@@ -85,6 +85,11 @@ class CsvSource:
             with open(self.csv_path, newline="", encoding="utf-8-sig") as f:
                 reader = csv.DictReader(f)
                 columns = [c.strip() for c in (reader.fieldnames or [])]
+                twice = sorted({c for c in columns if columns.count(c) > 1})
+                if twice:  # DictReader would keep the last one silently
+                    at = {c: ", ".join(str(k + 1) for k, x in enumerate(columns) if x == c) for c in twice}
+                    where = ", ".join(f"{c!r} (columns {at[c]})" for c in twice)
+                    raise DataError(f"{self.csv_path}: the header names {where} more than once; keep one of each")
                 reader.fieldnames = columns
                 for r in reader:
                     rows.append({k: v if v is None or k is None else v.strip() for k, v in r.items()})
@@ -108,7 +113,8 @@ class CsvSource:
             if why is None:
                 key = same_file_key(self._resolve(r["tactile"]))
                 if key in seen:
-                    why = f"duplicate row: tactile image {r['tactile']} is also on line {seen[key]}"
+                    why = (f"duplicate row: tactile image {r['tactile']} is the file of line {seen[key]} (the same "
+                           "path, or a link to it)")
                 seen.setdefault(key, self._lines[i])
             forces.append(force if why is None else None)
             if why:

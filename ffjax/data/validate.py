@@ -23,6 +23,10 @@ log = logging.getLogger("ffjax.data")
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 PNG_TRAILER = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # the IEND chunk: length 0, type, CRC
 FT_NAMES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
+# The largest force per axis a label may hold, N: a vision-based tactile sensor's gel tears long before (the paper
+# presses to ~15-20 N, GelSight Minis are rated for tens of newtons), and the 6-axis sensors used to label them
+# measure up to ~100-200 N. A label beyond it is a unit or parsing error (a row of 1e30 trained to "MAE 7e28 N").
+FORCE_LIMIT_N = 200.0
 SHOW = 5  # reasons quoted in a bad-rows error or skip warning
 
 
@@ -40,8 +44,10 @@ def parse_ft_cell(cell: str) -> tuple[np.ndarray | None, str | None]:
         if not math.isfinite(v):
             return None, f"FT cell {cell!r}: {name} is {'NaN' if math.isnan(v) else 'inf'}"
         values.append(v)
-    if max(abs(v) for v in values[:3]) > np.finfo(np.float32).max:
-        return None, f"FT cell {cell!r}: force overflows float32"
+    worst = max(range(3), key=lambda k: abs(values[k]))
+    if abs(values[worst]) > FORCE_LIMIT_N:
+        return None, (f"FT cell {cell!r}: {FT_NAMES[worst]} = {values[worst]:g} N is beyond {FORCE_LIMIT_N:g} N, "
+                      "more than any tactile sensor takes (a unit error? forces are in newtons)")
     return np.asarray(values[:3], np.float32), None
 
 
@@ -120,9 +126,14 @@ def check_depth_values(depth: np.ndarray, path: Path) -> np.ndarray:
     return depth
 
 
-def same_file_key(path: Path) -> str:
-    """A key under which two spellings of one path compare equal (for duplicate rows)."""
-    return os.path.normcase(os.path.normpath(os.path.abspath(path)))
+def same_file_key(path: Path) -> str | tuple[int, int]:
+    """A key under which two rows naming one file compare equal (for duplicate rows): the file's device and inode
+    when it exists (a symlink or a hard link to it is the same file), else its path with every link resolved."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return os.path.normcase(os.path.realpath(path))
+    return st.st_dev, st.st_ino
 
 
 def report_bad_rows(source: str, problems: list[tuple[str, str]], n_rows: int, skip: bool) -> None:

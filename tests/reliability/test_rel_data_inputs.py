@@ -82,7 +82,40 @@ def test_wrong_cell_count_and_empty_path(split, row, why):
 
 def test_duplicate_rows(split):
     set_row(split, 4, "./tactile/002.png,depth/002.npy,2 -2 3.5 0 0 0")
-    with pytest.raises(data.DataError, match=r"line 6\): duplicate row: .*002\.png is also on line 4"):
+    with pytest.raises(data.DataError, match=r"line 6\): duplicate row: .*002\.png is the file of line 4"):
+        data.open_split(split)
+
+
+@pytest.mark.parametrize("link", ["symlink", "hardlink"])
+def test_a_link_to_another_rows_frame_is_a_duplicate(split, link):
+    """Issue 33 (4): a symlink or a hard link to a frame another row names, with other labels, is the same frame."""
+    import os
+
+    folder = split.parent
+    (os.symlink if link == "symlink" else os.link)(folder / "tactile/002.png", folder / "tactile/alias.png")
+    set_row(split, 4, "tactile/alias.png,depth/004.npy,9 9 9 0 0 0")
+    with pytest.raises(data.DataError, match=r"line 6\): duplicate row: tactile image tactile/alias\.png is the file "
+                                             r"of line 4"):
+        data.open_split(split)
+
+
+def test_an_implausible_label_names_its_row(split):
+    """Issue 33 (2): a force no tactile sensor takes (1e30, a unit error) is refused with its row, not trained on."""
+    set_row(split, 2, "tactile/002.png,depth/002.npy,1e30 2 3 0 0 0")
+    with pytest.raises(data.DataError, match=r"row 2 \(line 4\): FT cell .*Fx = 1e\+30 N is beyond 200 N"):
+        data.open_split(split)
+    set_row(split, 2, "tactile/002.png,depth/002.npy,1 2 -250 0 0 0")
+    with pytest.raises(data.DataError, match=r"Fz = -250 N is beyond 200 N"):
+        data.open_split(split)
+    src = data.open_split(split, skip_bad_rows=True)  # or dropped, and said so
+    assert len(src) == 5 and "beyond 200 N" in src.skipped[0][1]
+
+
+def test_a_column_named_twice_is_refused(split):
+    """Issue 33 (3): `tactile,depth,FT,FT` used the last FT silently."""
+    lines = split.read_text().splitlines()
+    split.write_text("\n".join(["tactile,depth,FT,FT"] + [f"{line},0 0 0 0 0 0" for line in lines[1:]]) + "\n")
+    with pytest.raises(data.DataError, match=r"data\.csv: the header names 'FT' \(columns 3, 4\) more than once"):
         data.open_split(split)
 
 
