@@ -142,3 +142,30 @@ def test_ft_reading_is_per_press():
                                                   dataset.ft_reading(f[2:], seeds[2:], 0.005)]), whole)
     assert 0 < np.abs(whole - f).max() < 0.05 and dataset.ft_reading(f, seeds, 0.0).tolist() == \
         f.astype(np.float32).tolist()
+
+
+def test_one_writer_per_folder_and_strays_are_named(root, cfg, tmp_path):
+    """Issue 33 (5): a second generate into a folder being written is refused, naming the first; a shard of another
+    config's size is redone, and one this config does not write is named (a rerun used to call such a folder
+    complete)."""
+    import shutil
+
+    from ffjax.errors import DataError, FolderLockedError
+    from ffjax.files import folder_lock
+
+    busy = tmp_path / "busy"
+    with folder_lock(busy, "dataset generation"), pytest.raises(FolderLockedError, match="another dataset generation"):
+        dataset.generate(cfg, busy, progress=False)
+    assert [p.name for p in busy.iterdir()] == [".lock"]
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy)
+    first = copy / "val" / "shard_00000.npz"
+    small = {k: v[:1] for k, v in np.load(first).items()}
+    dataset.save_npz(first, small)  # another writer's shard of one press
+    (copy / "manifest.json").unlink()
+    m = dataset.generate(cfg, copy, workers=1, progress=False)
+    assert m["generation"]["rendered"] == len(data.open_split(copy / "val"))  # that shard only
+    assert _files(copy) == _files(root)  # redone to this config's bytes
+    shutil.copy(copy / "val" / "shard_00000.npz", copy / "val" / "shard_00007.npz")
+    with pytest.raises(DataError, match=r"val holds shard\(s\) this config does not write \(shard_00007\.npz\)"):
+        dataset.generate(cfg, copy, progress=False)

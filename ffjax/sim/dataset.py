@@ -37,6 +37,7 @@ import json
 import multiprocessing
 import os
 import shutil
+import signal
 import time
 import warnings
 import zipfile
@@ -48,7 +49,8 @@ from tqdm import tqdm
 
 from ffjax import sim
 from ffjax.data.images import write_rgb
-from ffjax.files import atomic_write, atomic_write_text, check_writable
+from ffjax.errors import DataError
+from ffjax.files import LOCK_NAME, atomic_write, atomic_write_text, check_writable, folder_lock
 from ffjax.sim import batched
 from ffjax.sim.sensors import MINI_NAMES, SENSOR_NAMES, get_sensor, with_pattern_moving
 
@@ -264,13 +266,28 @@ def _write_text(path: Path, text: str) -> None:
 _RESUME_HINT = "finished shards are kept, rerun the same command to continue"
 
 
-def _shard_ok(path: Path) -> bool:
-    """A shard is done when it is there and its zip directory reads (cheap: no arrays are loaded)."""
+def _shard_ok(path: Path, n: int) -> bool:
+    """A shard is done when it is there, its zip directory reads and it holds the n presses this config puts in it
+    (cheap: the force array's header only); a shard of another config's size is redone."""
     try:
-        with zipfile.ZipFile(path) as zf:
-            return "force.npy" in zf.namelist()
-    except (OSError, zipfile.BadZipFile):
+        with zipfile.ZipFile(path) as zf, zf.open("force.npy") as f:
+            read = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+            shape = read[np.lib.format.read_magic(f)](f)[0]
+            return len(shape) == 2 and shape[0] == n
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
         return False
+
+
+def _stray(folder: Path, count: int) -> list[Path]:
+    """Shard files in a split's folder beyond the ones its config writes (an interrupted writer of another
+    config left them)."""
+    want = {f"shard_{k:05d}.npz" for k in range(count)}
+    return sorted(p for p in folder.glob("shard_*.npz") if p.name not in want)
+
+
+def _ignore_sigint() -> None:
+    """A worker leaves Ctrl-C to the parent, which stops them all with one line (not one traceback each)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _shard_task(args) -> int:
@@ -297,7 +314,7 @@ def _prepare(out: Path, g: dict, force: bool) -> None:
             raise FileExistsError(f"{out} holds a dataset generated with a different config (differs in: "
                                   f"{', '.join(diff)}); pass --force (force=True) to delete and regenerate "
                                   f"it, or choose another --out")
-    elif out.is_dir() and any(out.iterdir()) and not force:
+    elif out.is_dir() and any(p.name != LOCK_NAME for p in out.iterdir()) and not force:
         raise FileExistsError(f"{out} is not empty and holds no dataset config.json; pass --force to write "
                               f"into it anyway (only this tool's files are ever deleted), or choose another "
                               f"--out")
@@ -318,11 +335,16 @@ def default_workers(presses: int, at_least: int) -> int:
 
 
 def generate(cfg: dict, out, force: bool = False, workers: int | None = None, progress: bool = True) -> dict:
-    """Write (or finish, or reuse) every split of `cfg` under `out`; returns the manifest dict."""
-
+    """Write (or finish, or reuse) every split of `cfg` under `out`; returns the manifest dict. One writer per
+    folder: a second one is refused (FolderLockedError naming the first) before it touches anything."""
     out = Path(out)
-    g = gen_config(cfg)
     check_writable(out, what="dataset folder")  # before any rendering
+    with folder_lock(out, "dataset generation"):
+        return _generate(cfg, out, force, workers, progress)
+
+
+def _generate(cfg: dict, out: Path, force: bool, workers: int | None, progress: bool) -> dict:
+    g = gen_config(cfg)
     _prepare(out, g, force)
     specs = split_specs(cfg)
     size, shard = tuple(g["data"]["render_size"]), int(g["data"]["shard_size"])
@@ -333,6 +355,11 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
         for stale in folder.glob(".*.tmp*"):  # leftovers of a killed run
             stale.unlink()
         bounds = [(a, min(a + shard, spec.count)) for a in range(0, spec.count, shard)]
+        stray = _stray(folder, len(bounds))
+        if stray:
+            names = ", ".join(p.name for p in stray[:5]) + (", ..." if len(stray) > 5 else "")
+            raise DataError(f"{folder} holds shard(s) this config does not write ({names}): left by a writer with "
+                            "another config; pass --force (force=True) to regenerate the folder")
         sensor = sensor_of(spec.sensor, g["data"])
         info = {"name": spec.name, "sensor": spec.sensor, "sensor_name": sensor.name, "gel": sensor.gel_id,
                 "shapes": list(spec.shapes), "per_shape": spec.per_shape, "count": spec.count,
@@ -340,7 +367,8 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
                 "seed": g["seed"], "seed_block": spec.index}
         splits[spec.name] = info
         total += spec.count
-        todo = [(k, a, b) for k, (a, b) in enumerate(bounds) if not _shard_ok(folder / f"shard_{k:05d}.npz")]
+        todo = [(k, a, b) for k, (a, b) in enumerate(bounds)
+                if not _shard_ok(folder / f"shard_{k:05d}.npz", b - a)]
         if not (folder / "split.json").is_file():
             _write_text(folder / "split.json", json.dumps(info, indent=1))
         if not (folder / "background.png").is_file():
@@ -372,9 +400,17 @@ def generate(cfg: dict, out, force: bool = False, workers: int | None = None, pr
                 bar.update(_shard_task(t))
         else:
             ctx = multiprocessing.get_context("spawn")  # safe even if the caller already started jax threads
-            with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+            pool = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_ignore_sigint)
+            try:
                 for n in (f.result() for f in cf.as_completed([pool.submit(_shard_task, t) for t in tasks])):
                     bar.update(n)
+            except KeyboardInterrupt:  # finished shards stay; the workers are stopped, not waited for
+                procs = list((getattr(pool, "_processes", None) or {}).values())
+                pool.shutdown(wait=False, cancel_futures=True)
+                for proc in procs:  # each writes its shard atomically: a stopped one leaves only a temp file
+                    proc.terminate()
+                raise
+            pool.shutdown()
     seconds = time.perf_counter() - t0
     manifest = {"version": VERSION, "preset": cfg.get("preset"), "seed": g["seed"], "config": g,
                 "data_config": json.loads(json.dumps(cfg["data"])), "splits": splits,

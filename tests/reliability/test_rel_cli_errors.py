@@ -42,3 +42,23 @@ def test_bad_arguments_are_one_line_errors(tmp_path, cmd, rc, fragment):
     assert p.returncode == rc, p.stderr
     assert len(errors) == 1 and fragment.format(tmp=tmp_path) in errors[0], p.stderr
     assert "Traceback" not in p.stderr
+
+
+def test_ctrl_c_during_dataset_generation_is_one_line(tmp_path):
+    """Issue 33 (7): Ctrl-C (SIGINT to the whole process group, as a terminal sends it) while two workers render:
+    one line, exit 130, the finished shards kept (it printed ~104 lines and 3 tracebacks)."""
+    import signal
+    import time
+
+    out = tmp_path / "data"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    p = subprocess.Popen([sys.executable, "-m", "ffjax.simulate", "--preset", "smoke", "--out", str(out), "--workers",
+                          "2", "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                         cwd=ROOT, start_new_session=True)
+    t0 = time.time()
+    while time.time() - t0 < 300 and not list(out.rglob("shard_*.npz")) and p.poll() is None:
+        time.sleep(0.2)
+    os.killpg(p.pid, signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130 and err.strip().splitlines() == ["interrupted"], err
+    assert list(out.rglob("shard_*.npz"))
