@@ -171,13 +171,23 @@ def _converted(folder: Path, frame_size) -> Trained:
 
 def _frame_size(folder: Path, content: dict, override, fallback, fallback_source: str):
     if override is not None:
-        return tuple(int(v) for v in override), "argument"
+        return _size(override, "the frame_size argument"), "argument"
     if content.get("frame_size"):
-        return tuple(int(v) for v in content["frame_size"]), MODEL_JSON
+        return _size(content["frame_size"], f"{folder / MODEL_JSON}: \"frame_size\""), MODEL_JSON
     sensor = read_json(folder / SENSOR_JSON)
     if sensor and sensor.get("frame_size"):
-        return tuple(int(v) for v in sensor["frame_size"]), SENSOR_JSON
+        return _size(sensor["frame_size"], f"{folder / SENSOR_JSON}: \"frame_size\""), SENSOR_JSON
     return tuple(int(v) for v in fallback), fallback_source
+
+
+def _size(value, where: str) -> tuple[int, int]:
+    """(H, W) from a [height, width] pair of positive whole numbers; CheckpointError naming `where` otherwise."""
+    ok = isinstance(value, (list, tuple)) and len(value) == 2 and all(
+        isinstance(v, int) and not isinstance(v, bool) and v > 0 or isinstance(v, float) and v.is_integer() and v > 0
+        for v in value)
+    if not ok:
+        raise CheckpointError(f"{where} is {value!r}, expected [height, width] in pixels (e.g. [240, 320])")
+    return int(value[0]), int(value[1])
 
 
 def _reference_background(folder: Path, content: dict) -> dict | None:

@@ -266,3 +266,22 @@ def test_the_background_follows_a_drifting_light_but_not_a_contact(pred):
     assert np.abs(followed.background - end).mean() < 1.0  # within a count of the drifted light
     stuck, _ = run(None)
     assert np.abs(stuck.background - end).mean() > 4.0  # the start-up background: 4.5% off
+
+
+@pytest.mark.parametrize("bad", [5, [240], [240, "320"], [0, 320], [240.5, 320], True])
+def test_a_bad_frame_size_in_model_json_is_one_error_naming_it(ckpt, tmp_path, capsys, bad):
+    """Issue 33 (7): model.json "frame_size": 5 was a 25-line TypeError in ffjax.live."""
+    import json
+
+    from ffjax import cli
+
+    store.save_bundle(tmp_path / "model", ckpt)
+    mj = tmp_path / "model" / "model.json"
+    info = json.loads(mj.read_text())
+    info["frame_size"] = bad
+    info.pop("sha256", None)  # as a file written before model.json carried its checksum (still read)
+    mj.write_text(json.dumps(info))
+    code = cli.run(live.main, ["--checkpoint", str(tmp_path / "model"), "--camera", "0", "--headless"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "Traceback" not in err[0], err
+    assert 'model.json: "frame_size" is' in err[0] and "expected [height, width]" in err[0]
