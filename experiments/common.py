@@ -157,7 +157,7 @@ def ensure_data(cfg: dict, data_dir=None, force: bool = False, progress: bool = 
     """The preset's simulated dataset, generated on first use and reused after (same config)."""
     from ffjax.sim import dataset
 
-    root = Path(data_dir or ROOT / "data" / cfg["preset"]).absolute()
+    root = Path(data_dir or dataset.default_root(cfg["preset"])).absolute()
     if not (root / "manifest.json").exists():
         # a mistyped --data would otherwise quietly cost a whole simulation
         print(f"note: no dataset at {root}: simulating the {cfg['preset']} preset's dataset there (first use; reused "

@@ -47,7 +47,9 @@ def scores(ev: dict) -> dict:
 
 def data_folder(cfg: dict, data_dir, share: float) -> Path:
     """The dataset of one share: the preset's own (the ablation's) at the preset's share, else a sibling folder."""
-    base = Path(data_dir or common.ROOT / "data" / cfg["preset"]).absolute()
+    from ffjax.sim import dataset
+
+    base = Path(data_dir or dataset.default_root(cfg["preset"])).absolute()
     return base if share == float(cfg["data"]["pattern_moving"]) else base.with_name(f"{base.name}-pattern{share:g}")
 
 

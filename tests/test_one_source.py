@@ -163,3 +163,20 @@ def test_caches_ignore_new_keys_at_their_old_values():
     assert pretrain.settings(cfg, "vit") == pretrain.settings(before, "vit")
     assert pretrain.settings(configs.get("smoke", {"model.vit.interpolate_offset": 0.0}), "vit") != \
         pretrain.settings(cfg, "vit")
+
+
+def test_the_default_dataset_folder_never_depends_on_the_working_folder(tmp_path, monkeypatch):
+    """Issue 33 (8): without --data, every tool keeps a preset's dataset in one documented place (the checkout's
+    data/<preset>, or $FFJAX_DATA/<preset>), not in whatever folder it was started from."""
+    from experiments import common
+
+    monkeypatch.delenv(dataset.DATA_ENV, raising=False)
+    monkeypatch.chdir(tmp_path)
+    assert dataset.default_root("smoke") == common.ROOT / "data" / "smoke"
+    monkeypatch.setenv(dataset.DATA_ENV, str(tmp_path / "cache"))
+    assert dataset.default_root("quick") == tmp_path / "cache" / "quick"
+    # every tool asks default_root: none builds a data path of its own relative to the working folder
+    for f in ("ffjax/train/__main__.py", "ffjax/train/pretrain/__main__.py", "experiments/common.py",
+              "experiments/pattern_share.py", "experiments/diagnostics/object_probe.py"):
+        text = (common.ROOT / f).read_text()
+        assert "default_root(" in text and 'Path("data")' not in text and 'ROOT / "data"' not in text, f

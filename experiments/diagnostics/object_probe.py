@@ -173,8 +173,9 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     cfg = common.config_from_args(ap, args)
     from ffjax import sim
+    from ffjax.sim import dataset
 
-    data = Path(args.data or common.ROOT / "data" / cfg["preset"])
+    data = Path(args.data or dataset.default_root(cfg["preset"]))
     out = Path(args.out or common.ROOT / "results" / f"object_probe-{cfg['preset']}")
     out.mkdir(parents=True, exist_ok=True)
     size = tuple(cfg["data"]["render_size"])

@@ -87,6 +87,21 @@ class SplitSpec:
         return self.per_shape * len(self.shapes)
 
 
+DATA_ENV = "FFJAX_DATA"
+
+
+def default_root(preset: str) -> Path:
+    """Where a preset's simulated dataset is kept when no --data is given, the same from any working folder:
+    $FFJAX_DATA/<preset>; else the source checkout's data/<preset> (README installs from a checkout); else
+    ~/.cache/ffjax/data/<preset>."""
+    if os.environ.get(DATA_ENV):
+        return Path(os.environ[DATA_ENV]).expanduser().absolute() / preset
+    checkout = Path(__file__).resolve().parents[2]
+    if (checkout / "pyproject.toml").is_file() and (checkout / "ffjax").is_dir():
+        return checkout / "data" / preset
+    return Path.home() / ".cache" / "ffjax" / "data" / preset
+
+
 def split_dir(root, kind: str, name: str | None = None) -> Path:
     """Folder of a split: split_dir(DIR, "train"), split_dir(DIR, "unseen", "banana"),
     split_dir(DIR, "sensor", "mini-2-gel1"), split_dir(DIR, "calib", "digit")."""

@@ -2,7 +2,8 @@
 [--out RUN] [--resume[=auto]] [--pretrained DIR | --init KIND:PATH] [--set key.path=value ...]`: train one method,
 report its validation force error.
 
-Without --data the preset's simulated dataset is generated (or reused) under data/<preset>. --data may
+Without --data the preset's simulated dataset is generated (or reused) in its cache folder,
+ffjax.sim.dataset.default_root (the checkout's data/<preset>, or $FFJAX_DATA/<preset>). --data may
 also be a CSV in the FeelAnyForce release layout (tactile, depth, FT; paths relative to the CSV).
 """
 
@@ -31,7 +32,8 @@ def parse_args(argv=None):
                     "min to simulate data/quick on first use; full: 1.5-5 min per seed")
     ap.add_argument("--method", default="dino_rd", choices=registry.names(), help="registry name (default: dino_rd)")
     ap.add_argument("--data", help="dataset root holding train/ and val/, or a release-layout CSV "
-                    "(default: simulate into data/<preset>)")
+                    "(default: the preset's simulated dataset in the checkout's data/<preset>, or "
+                    "$FFJAX_DATA/<preset>)")
     ap.add_argument("--val", help="validation CSV (release layout) when --data is a CSV")
     ap.add_argument("--skip-bad-rows", action="store_true", help="CSV data: drop rows whose files or FT cells "
                     "are bad (count and first reasons logged) instead of stopping at the first one")
@@ -127,7 +129,7 @@ def _data(args):
         if not args.val:
             print("note: no --val CSV: no validation, the best checkpoint is the last one", file=sys.stderr)
     elif data_dir is None:
-        data_dir = Path("data") / args.preset
+        data_dir = dataset.default_root(args.preset)
         print(f"dataset: {data_dir} (simulated, preset {args.preset}; generated once, then reused)")
         dataset.generate(args.cfg, data_dir)
     return data_dir

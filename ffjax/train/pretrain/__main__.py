@@ -34,12 +34,12 @@ def main(argv=None) -> None:
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
     cfg = configs.from_cli(ap, args.preset, args.set)
-    out = Path(args.out or Path("data") / args.preset / "pretrained")
+    out = Path(args.out or dataset.default_root(args.preset) / "pretrained")
     cli.check_out(ap, out)  # before pretraining: a read-only or mistyped --out fails now, named
     for kind in KINDS if args.backbone == "all" else (args.backbone,):
         folder = ensure(cfg, kind, run_dir(out, kind), force=args.force, progress=not args.quiet)
         if args.probe:
-            data = Path(args.data or Path("data") / args.preset)
+            data = Path(args.data or dataset.default_root(args.preset))
             if not (data / "train").exists():
                 dataset.generate(cfg, data, progress=not args.quiet)
             print(format_report(probe_report(cfg, kind, folder, data, progress=not args.quiet)))
