@@ -213,8 +213,8 @@ class Predictor:
                 " (channels first? use (H, W, 3) order, e.g. x.transpose(1, 2, 0))" if x.shape[-3] == 3 else ""
             raise ValueError(f"{what} has {x.shape[-1]} channels (shape {x.shape}), the model needs 3 ({CHANNELS})"
                              f"{hint}")
-        hw = tuple(x.shape[-3:-1])
-        if hw != self.frame_size:
+        hw = tuple(int(v) for v in x.shape[-3:-1])
+        if hw != tuple(int(v) for v in self.frame_size):  # a list [24, 32] is the same size as (24, 32)
             msg = (f"{what} is {hw[0]}x{hw[1]} (HxW) but this checkpoint was trained on {self.frame_size[0]}x"
                    f"{self.frame_size[1]} frames (from {self.frame_size_source}); resize/crop the camera frames "
                    f"to that size, calibrate for this sensor (python -m ffjax.calibrate), or load with "

@@ -69,6 +69,11 @@ class CsvSource:
                              for why in [self._check_files(r)] if why})
         self.skipped = [(self._where(i), why) for i, why in sorted(problems.items())]
         report_bad_rows(str(self.csv_path), self.skipped, len(rows), skip_bad_rows)
+        sizes = {size: cell for cell, (size, why) in self._bg_size.items() if size and not why}
+        if len(sizes) > 1:  # per-row backgrounds (validate): one split, one frame size, or batches cannot stack
+            (a, ca), (b, cb) = list(sizes.items())[:2]
+            raise DataError(f"{self.csv_path}: background {ca} is {a[0]}x{a[1]} px but {cb} is {b[0]}x{b[1]} px: a "
+                            "split holds frames of one size (split it, or resize the frames)")
         keep = [i for i in range(len(rows)) if i not in problems]
         self._row_ids, self._lines = keep, [lines[i] for i in keep]
         self.tactile = [rows[i]["tactile"] for i in keep]
@@ -203,6 +208,11 @@ class CsvSource:
         if not recs:
             return {"image": np.zeros((0, 1, 1, 3), np.uint8), "depth": np.zeros((0, 1, 1), np.float32),
                     "force": np.zeros((0, 3), np.float32)}
+        first = recs[0]["image"].shape
+        for i, r in enumerate(recs):
+            if r["image"].shape != first:
+                raise DataError(f"{self._where(start + i)}: frame {self.tactile[start + i]} is {r['image'].shape[:2]}"
+                                f", {self.tactile[start]} is {first[:2]}: a split holds frames of one size")
         out = {k: np.stack([r[k] for r in recs]) for k in ("image", "depth", "force")}
         if self._bg_column:  # per-row backgrounds: keep them so batched preprocessing can use them
             out["background"] = np.stack([r["background"] for r in recs])

@@ -118,7 +118,10 @@ def depth_problem(path: Path, want_hw: tuple[int, int] | None) -> str | None:
 
 
 def check_depth_values(depth: np.ndarray, path: Path) -> np.ndarray:
-    """The loaded depth as float32; NaN/inf anywhere raises DataError (a load-time check)."""
+    """The loaded depth as float32; a dtype that is not real numbers (complex, bool, strings) or NaN/inf anywhere
+    raises DataError (a load-time check)."""
+    if np.asarray(depth).dtype.kind not in "fiu":
+        raise DataError(f"depth file {path} holds {np.asarray(depth).dtype} values, expected real numbers (mm)")
     depth = np.asarray(depth, np.float32)
     bad = ~np.isfinite(depth)
     if bad.any():

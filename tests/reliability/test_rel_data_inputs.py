@@ -211,6 +211,34 @@ def test_per_row_background_column(split):
     assert len(data.open_split(split, skip_bad_rows=True)) == 5
 
 
+def test_frames_of_two_sizes_in_one_split_name_their_files(split):
+    """Issue 33 (7): per-row backgrounds (and frames) of two sizes stopped training on 'all input arrays must have
+    the same shape', naming no file, after its folders were made."""
+    folder = split.parent
+    lines = split.read_text().splitlines()
+    (folder / "background.png").rename(folder / "bg_a.png")
+    cv2.imwrite(str(folder / "bg_b.png"), np.full((H + 4, W, 3), 100, np.uint8))
+    cv2.imwrite(str(folder / "tactile/005.png"), np.full((H + 4, W, 3), 120, np.uint8))
+    np.save(folder / "depth/005.npy", np.zeros((H + 4, W)))
+    rows = [line + ",bg_a.png" for line in lines[1:-1]] + [lines[-1] + ",bg_b.png"]
+    split.write_text("tactile,depth,FT,background\n" + "\n".join(rows) + "\n")
+    with pytest.raises(data.DataError, match=r"background bg_a\.png is 12x16 px but bg_b\.png is 16x16 px"):
+        data.open_split(split, validate=True)
+    src = data.open_split(split)  # unvalidated: found when the rows are read together
+    with pytest.raises(data.DataError, match=r"row 5 \(line 7\): frame tactile/005\.png is \(16, 16\), "
+                                             r"tactile/000\.png is \(12, 16\)"):
+        src.read_range()
+
+
+@pytest.mark.parametrize("bad", [np.zeros((H, W), complex), np.zeros((H, W), bool)])
+def test_a_depth_file_of_complex_or_bool_values_is_refused(split, bad):
+    """Issue 33 (7): complex depth lost its imaginary part and bool became 0/1 silently when a split was opened
+    without validation."""
+    np.save(split.parent / "depth/002.npy", bad)
+    with pytest.raises(data.DataError, match=rf"row 2 .*depth file .*002\.npy holds {bad.dtype} values"):
+        data.open_split(split)[2]
+
+
 # --- the training CLI: validates CSVs before any work, --skip-bad-rows passes through
 
 

@@ -180,3 +180,12 @@ def test_no_frames_give_no_depth_maps():
     none = np.zeros((0, H, W, 3), np.uint8)
     assert p.predict(none).shape == (0, 3)
     assert p.predict_depth(none).shape == (0, H, W) and p.predict_depth(none, frame=False).shape == (0, SIZE, SIZE)
+
+
+def test_a_frame_size_given_as_a_list_is_the_same_size():
+    """Issue 33 (7): "image is 24x32 (HxW) but this checkpoint was trained on 24x32" (a list against a tuple)."""
+    t = tiny_checkpoint(sensor_bg("mini-1"))
+    p = inference.Predictor(store.Trained(t.cfg, t.spec, t.stats, SIZE, [H, W], "argument", "run", "memory",
+                                          t.variables))
+    p.set_background(sensor_bg("mini-1"))
+    assert p.predict(pressed(sensor_bg("mini-1"))).shape == (1, 3)
