@@ -65,3 +65,15 @@ def test_a_legacy_dataset_opens_and_is_not_taken_for_todays_simulator(tmp_path):
     assert len(open_split(folder / "train")) == 20
     with pytest.raises(FileExistsError, match=r"differs in: .*version"):
         dataset._prepare(folder, dataset.gen_config(cfg), force=False)
+
+
+def test_a_run_path_that_is_not_utf8_is_named(tmp_path):
+    """Issue 33 (7): a non-UTF-8 byte in a run's path was reported as "its files are damaged"."""
+    import os
+
+    bad = Path(os.fsdecode(os.fsencode(tmp_path) + b"/run\xff"))
+    shutil.copytree(LEGACY / "run", bad)
+    from ffjax.errors import CheckpointError
+
+    with pytest.raises(CheckpointError, match=r"run\\xff'?: the path holds bytes that are not UTF-8"):
+        inference.load(bad)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -88,11 +89,22 @@ def _unjson(obj):
     return obj
 
 
+def _utf8(path: Path) -> Path:
+    """`path`, when it can be handed to orbax/TensorStore (UTF-8 only); CheckpointError naming it otherwise (a
+    Latin-1 file name in it was reported as "its files are damaged")."""
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        raise CheckpointError(f"{os.fsencode(path)!r}: the path holds bytes that are not UTF-8, which the checkpoint "
+                              "library cannot open; rename the folder") from None
+    return path
+
+
 class Checkpointer:
     """Two orbax managers under one run folder: `checkpoints/` (latest, for resuming) and `best/`."""
 
     def __init__(self, run_dir, max_to_keep: int = 2):
-        run_dir = Path(run_dir).absolute()  # orbax needs absolute paths
+        run_dir = _utf8(Path(run_dir).absolute())  # orbax needs absolute paths
         self.run_dir = run_dir
         # model.json as the checkpoints were written with it: a resume refused as another model's puts it back
         self._model_json = (run_dir / MODEL_JSON).read_bytes() if (run_dir / MODEL_JSON).is_file() else None
@@ -332,7 +344,7 @@ def restore_variables(run_dir, which: str, target: dict) -> dict:
     naming the step folder otherwise."""
     if which not in ("best", "latest"):
         raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
-    run_dir = Path(run_dir).absolute()
+    run_dir = _utf8(Path(run_dir).absolute())
     folder = run_dir / ("best" if which == "best" else "checkpoints")
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder} not found: {run_dir} has no {which} checkpoint yet")
