@@ -259,8 +259,13 @@ def test_stats_from_dict_rejects_unknown_keys(key):
 finite32 = st.floats(-1e6, 1e6, allow_nan=False, width=32)
 
 
+plausible32 = st.floats(-validate.FORCE_LIMIT_N, validate.FORCE_LIMIT_N, width=32)  # a force a sensor can take
+
+
 @FAST
-@given(values=st.one_of(st.lists(finite32, min_size=3, max_size=3), st.lists(finite32, min_size=6, max_size=6)),
+@given(values=st.one_of(st.lists(plausible32, min_size=3, max_size=3),
+                        st.tuples(st.lists(plausible32, min_size=3, max_size=3),
+                                  st.lists(finite32, min_size=3, max_size=3)).map(lambda t: t[0] + t[1])),
        sep=st.sampled_from([" ", "  ", ", ", ",", "\t"]), fmt=st.sampled_from(["{:.9g}", "{!r}", "{:.3e}"]),
        pad=st.sampled_from(["", " ", "  "]))
 def test_ft_cells_parse(values, sep, fmt, pad):
@@ -268,6 +273,19 @@ def test_ft_cells_parse(values, sep, fmt, pad):
     force = data.csv_source.parse_ft(cell, "x.csv row 0 (line 2)")
     assert force.shape == (3,) and force.dtype == np.float32
     np.testing.assert_allclose(force, np.float32([float(fmt.format(v)) for v in values[:3]]), rtol=1e-6)
+
+
+@FAST
+@given(values=st.lists(plausible32, min_size=6, max_size=6), i=st.integers(0, 2),
+       big=st.floats(validate.FORCE_LIMIT_N, 1e30, exclude_min=True), sign=st.sampled_from([1, -1]))
+def test_ft_cells_beyond_the_plausible_force_are_refused_by_axis(values, i, big, sign):
+    """Issue 33 (2): a force no tactile sensor takes is refused, naming its axis (torques are not bounded)."""
+    parts = [f"{v:.9g}" for v in values]
+    parts[i] = f"{sign * big:.9g}"
+    if abs(float(parts[i])) <= validate.FORCE_LIMIT_N:  # rounded onto the bound
+        return
+    with pytest.raises(data.DataError, match=rf"^x\.csv line 9: FT cell .*{validate.FT_NAMES[i]} = .* N is beyond"):
+        data.csv_source.parse_ft(" ".join(parts), "x.csv line 9")
 
 
 @FAST
