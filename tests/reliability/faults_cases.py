@@ -1,4 +1,4 @@
-"""Issue 17's nine numbered reliability cases, each exercised as a user would and measured.
+"""Issue 17's nine numbered reliability cases and issue 33's, each exercised as a user would and measured.
 
     python tests/reliability/faults.py --only-cases [--out DIR]     # or --cases beside the kill/resume parts
 
@@ -576,8 +576,85 @@ def case9(d: Path, sh: Shared) -> list[dict]:
     return rows
 
 
+def _csv_frames(folder: Path, n: int = 6, h: int = 12, w: int = 16) -> Path:
+    """A release-layout CSV split of n random frames (tactile/*.png, depth/*.npy, background.png); its data.csv."""
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    (folder / "tactile").mkdir(parents=True)
+    (folder / "depth").mkdir()
+    cv2.imwrite(str(folder / "background.png"), np.full((h, w, 3), 100, np.uint8))
+    lines = ["tactile,depth,FT"]
+    for i in range(n):
+        cv2.imwrite(str(folder / f"tactile/{i:03d}.png"), rng.integers(0, 256, (h, w, 3), dtype=np.uint8))
+        np.save(folder / f"depth/{i:03d}.npy", rng.uniform(0, 1, (h, w)))
+        lines.append(f"tactile/{i:03d}.png,depth/{i:03d}.npy,{i * 0.1:.1f} 0 {i + 1} 0 0 0")
+    (folder / "data.csv").write_text("\n".join(lines) + "\n")
+    return folder / "data.csv"
+
+
+def _csv_variant(d: Path, name: str, edit) -> Path:
+    """A fresh CSV split under d/name with edit(folder, lines) -> lines applied to its data.csv."""
+    csv = _csv_frames(d / name)
+    lines = csv.read_text().splitlines()
+    csv.write_text("\n".join(edit(csv.parent, lines)) + "\n")
+    return csv
+
+
+def case33(d: Path, sh: Shared) -> list[dict]:
+    """Issue 33's cases a user meets without a trained model: labels, CSV layout, folders, --out."""
+    import cv2
+    import numpy as np
+
+    from ffjax.files import folder_lock
+
+    def implausible(f, lines):
+        return lines[:3] + ["tactile/002.png,depth/002.npy,1e30 2 3 0 0 0"] + lines[4:]
+
+    def twice(f, lines):
+        return ["tactile,depth,FT,FT"] + [f"{ln},0 0 0 0 0 0" for ln in lines[1:]]
+
+    def alias(f, lines):
+        os.symlink(f / "tactile/002.png", f / "tactile/alias.png")
+        return lines[:5] + ["tactile/alias.png,depth/004.npy,9 9 9 0 0 0"] + lines[6:]
+
+    def two_sizes(f, lines):
+        (f / "background.png").rename(f / "bg_a.png")
+        cv2.imwrite(str(f / "bg_b.png"), np.full((16, 16, 3), 100, np.uint8))
+        cv2.imwrite(str(f / "tactile/005.png"), np.full((16, 16, 3), 120, np.uint8))
+        np.save(f / "depth/005.npy", np.zeros((16, 16)))
+        return (["tactile,depth,FT,background"] + [ln + ",bg_a.png" for ln in lines[1:-1]]
+                + [lines[-1] + ",bg_b.png"])
+
+    (d / "FILE").write_text("a regular file\n")
+    specs = [
+        ("33-2", "`train --data BAD.csv`, one FT row `1e30 2 3 0 0 0`", _train(_csv_variant(d, "s2", implausible),
+                                                                              d / "r2"), ["row 2", "beyond 200 N"]),
+        ("33-3", "`train --data X.csv` whose header is `tactile,depth,FT,FT`",
+         _train(_csv_variant(d, "s3", twice), d / "r3"), ["'FT' (columns 3, 4)"]),
+        ("33-4", "`train --data X.csv`, a row naming a symlink to another row's frame with other labels",
+         _train(_csv_variant(d, "s4", alias), d / "r4"), ["duplicate row", "alias.png"]),
+        ("33-7a", "`train --data X.csv` with per-row backgrounds of two sizes",
+         _train(_csv_variant(d, "s7", two_sizes), d / "r7"), ["bg_a.png", "bg_b.png"]),
+        ("33-7b", "`live --out FILE/sub` (FILE a regular file)",
+         ["ffjax.live", "--checkpoint", d / "MISSING", "--camera", "0", "--out", d / "FILE" / "sub"], ["--out"]),
+        ("33-7c", "`calibrate --out FILE/sub`", ["ffjax.calibrate", "--checkpoint", d / "MISSING", "--data",
+                                                 d / "x.csv", "--out", d / "FILE" / "sub"], ["--out"]),
+    ]
+    rows = [_refusal(d, sh.env, *s) for s in specs]
+    # a second writer into a dataset folder another process is writing (this harness holds its lock)
+    with folder_lock(d / "busy", "dataset generation"):
+        r = _cli(d, "33-5", sh.env, "ffjax.simulate", "--preset", "smoke", "--out", d / "busy", "--quiet")
+    rows.append(_row("33-5", "`simulate --out DATA` while another generation writes DATA",
+                     "rc 1, one error line naming the holder; nothing written", r,
+                     {**_error_checks(r, (1,), ["in use by another dataset generation"]),
+                      "nothing written": sorted(os.listdir(d / "busy")) == [".lock"]}))
+    return rows
+
+
 CASES = [("1", case1), ("2", case2), ("3", case3), ("4", case4), ("5", case5), ("6", case6), ("7", case7_inputs),
-         ("7", case7_models), ("8", case8), ("9", case9)]
+         ("7", case7_models), ("8", case8), ("9", case9), ("33", case33)]
 
 
 # ---- driver and report --------------------------------------------------------------------------------

@@ -20,6 +20,7 @@ def shared(tmp_path_factory):
     (faults_cases.case3, ["3a", "3b", "3c"]),
     (faults_cases.case7_inputs, ["7a", "7b", "7e", "7f", "7g", "7h", "7i", "7m", "7n"]),
     (faults_cases.case9, ["9a", "9b"]),
+    (faults_cases.case33, ["33-2", "33-3", "33-4", "33-7a", "33-7b", "33-7c", "33-5"]),
 ])
 def test_cheap_cases_pass_through_the_real_clis(fn, tags, shared, tmp_path):
     rows = faults_cases.run_case(fn, tmp_path / fn.__name__, shared, fn.__name__)
