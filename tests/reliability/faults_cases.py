@@ -71,12 +71,13 @@ class _Payload:
 # ---- running commands ---------------------------------------------------------------------------------
 
 
-def _start(folder: Path, name: str, env: dict, *args, module: bool = True) -> subprocess.Popen:
+def _start(folder: Path, name: str, env: dict, *args, module: bool = True, group: bool = False) -> subprocess.Popen:
     """Start `python -m args` (`python args` if not `module`) from the repository root, stdout and stderr to
-    folder/name.stdout and .stderr."""
+    folder/name.stdout and .stderr; group: in a process group of its own (a terminal's Ctrl-C goes to a group)."""
     args = ["-m"] * module + [str(a) for a in args]
     with open(folder / f"{name}.stdout", "w") as out, open(folder / f"{name}.stderr", "w") as err:
-        p = subprocess.Popen([sys.executable, *args], env=env, cwd=common.ROOT, stdout=out, stderr=err)
+        p = subprocess.Popen([sys.executable, *args], env=env, cwd=common.ROOT, stdout=out, stderr=err,
+                             start_new_session=group)
     p.logs, p.cmd, p.t0 = (folder / f"{name}.stdout", folder / f"{name}.stderr"), "python " + " ".join(args), \
         time.perf_counter()
     return p
@@ -653,8 +654,47 @@ def case33(d: Path, sh: Shared) -> list[dict]:
     return rows
 
 
+def case33_models(d: Path, sh: Shared) -> list[dict]:
+    """Issue 33's cases with a trained model: a bad frame_size, a non-UTF-8 run path, an empty source, Ctrl-C."""
+    import signal
+
+    bad = d / "bad_size"
+    shutil.copytree(sh.bundle, bad)
+    info = json.loads((bad / "model.json").read_text())
+    info["frame_size"] = 5
+    info.pop("sha256", None)  # as a model.json written before it carried its checksum (still read)
+    (bad / "model.json").write_text(json.dumps(info))
+    latin = Path(os.fsdecode(os.fsencode(d) + b"/run\xe9"))
+    shutil.copytree(sh.run, latin)
+    specs = [
+        ("33-7d", "`live` with model.json `\"frame_size\": 5`", ["ffjax.live", "--checkpoint", bad, "--camera", "0",
+                                                                "--headless"], ['"frame_size" is 5']),
+        ("33-7e", "`live --checkpoint RUN` where RUN's name holds a Latin-1 byte",
+         ["ffjax.live", "--checkpoint", latin, "--video", sh.video, "--headless"], ["not UTF-8"]),
+    ]
+    rows = [_refusal(d, sh.env, *s) for s in specs]
+    r = _cli(d, "33-7f", sh.env, "ffjax.live", "--checkpoint", sh.bundle, "--video", sh.video, "--headless",
+             "--warmup", 1000, "--out", d / "empty")
+    rows.append(_row("33-7f", "`live --video V --warmup 1000 --out O` (the video ends before a background)",
+                     "rc 1, one error line, nothing written", r,
+                     {**_error_checks(r, (1,), ["no frame to predict"]),
+                      "no forces.csv": not (d / "empty" / "forces.csv").exists(),
+                      "no 'wrote'": "wrote" not in r["out"]}))
+    p = _start(d, "33-7g", sh.env, "ffjax.simulate", "--preset", "smoke", "--out", d / "data", "--workers", 2,
+               "--quiet", group=True)
+    if _wait_until(lambda: bool(list((d / "data").rglob("shard_*.npz"))), p) and p.poll() is None:
+        os.killpg(p.pid, signal.SIGINT)
+    r = _wait(p)
+    rows.append(_row("33-7g", "Ctrl-C (SIGINT to the process group) while `simulate --workers 2` renders",
+                     "rc 130, one line, finished shards kept", r,
+                     {"rc 130": r["rc"] == 130, "one line": r["err"].strip().splitlines() == ["interrupted"],
+                      "no 'Traceback'": "Traceback" not in r["err"],
+                      "shards kept": bool(list((d / "data").rglob("shard_*.npz")))}))
+    return rows
+
+
 CASES = [("1", case1), ("2", case2), ("3", case3), ("4", case4), ("5", case5), ("6", case6), ("7", case7_inputs),
-         ("7", case7_models), ("8", case8), ("9", case9), ("33", case33)]
+         ("7", case7_models), ("8", case8), ("9", case9), ("33", case33), ("33", case33_models)]
 
 
 # ---- driver and report --------------------------------------------------------------------------------
