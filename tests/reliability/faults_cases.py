@@ -577,12 +577,13 @@ def case9(d: Path, sh: Shared) -> list[dict]:
     return rows
 
 
-def _csv_frames(folder: Path, n: int = 6, h: int = 12, w: int = 16) -> Path:
-    """A release-layout CSV split of n random frames (tactile/*.png, depth/*.npy, background.png); its data.csv."""
+def release_csv(folder: Path, n: int = 6, h: int = 12, w: int = 16, seed: int = 0) -> Path:
+    """A release-layout split of n random frames: data.csv (tactile, depth, FT "i -i i+1.5 0 0 0"), tactile/*.png,
+    depth/*.npy, background.png; its data.csv."""
     import cv2
     import numpy as np
 
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     (folder / "tactile").mkdir(parents=True)
     (folder / "depth").mkdir()
     cv2.imwrite(str(folder / "background.png"), np.full((h, w, 3), 100, np.uint8))
@@ -590,14 +591,14 @@ def _csv_frames(folder: Path, n: int = 6, h: int = 12, w: int = 16) -> Path:
     for i in range(n):
         cv2.imwrite(str(folder / f"tactile/{i:03d}.png"), rng.integers(0, 256, (h, w, 3), dtype=np.uint8))
         np.save(folder / f"depth/{i:03d}.npy", rng.uniform(0, 1, (h, w)))
-        lines.append(f"tactile/{i:03d}.png,depth/{i:03d}.npy,{i * 0.1:.1f} 0 {i + 1} 0 0 0")
+        lines.append(f"tactile/{i:03d}.png,depth/{i:03d}.npy,{i} -{i} {i + 1}.5 0 0 0")
     (folder / "data.csv").write_text("\n".join(lines) + "\n")
     return folder / "data.csv"
 
 
 def _csv_variant(d: Path, name: str, edit) -> Path:
     """A fresh CSV split under d/name with edit(folder, lines) -> lines applied to its data.csv."""
-    csv = _csv_frames(d / name)
+    csv = release_csv(d / name)
     lines = csv.read_text().splitlines()
     csv.write_text("\n".join(edit(csv.parent, lines)) + "\n")
     return csv

@@ -4,6 +4,7 @@ import json
 import logging
 
 import cv2
+import faults_cases
 import numpy as np
 import pytest
 
@@ -15,17 +16,7 @@ H, W = 12, 16
 
 def make_csv(folder, n=6, seed=0):
     """A release-layout split: data.csv (tactile, depth, FT), tactile/*.png, depth/*.npy, background.png."""
-    rng = np.random.default_rng(seed)
-    (folder / "tactile").mkdir(parents=True)
-    (folder / "depth").mkdir()
-    cv2.imwrite(str(folder / "background.png"), np.full((H, W, 3), 100, np.uint8))
-    lines = ["tactile,depth,FT"]
-    for i in range(n):
-        cv2.imwrite(str(folder / f"tactile/{i:03d}.png"), rng.integers(0, 256, (H, W, 3), dtype=np.uint8))
-        np.save(folder / f"depth/{i:03d}.npy", rng.uniform(0, 1, (H, W)))
-        lines.append(f"tactile/{i:03d}.png,depth/{i:03d}.npy,{i} -{i} {i + 1}.5 0 0 0")
-    (folder / "data.csv").write_text("\n".join(lines) + "\n")
-    return folder / "data.csv"
+    return faults_cases.release_csv(folder, n, H, W, seed)
 
 
 def set_row(csv_path, row, text):
