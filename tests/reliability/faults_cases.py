@@ -9,7 +9,7 @@ smoke dataset, a 2-epoch run of it, a bundle of that run, an 11-frame video), ru
 folder (OUT/cases/case1, ..., case7_inputs, case7_models, ...; every command's stdout and stderr kept there) and
 returns one row per command: what was done, what was expected, what was measured and
 the named checks whose conjunction is the row's "pass". `cases_md` renders the rows as a Markdown table.
-Case 5 needs a 40 MiB tmpfs (`mount`, root only); where mounting fails it is reported as skipped.
+Cases 5 and 33-6 need a tmpfs (`mount`, root only); where mounting fails they are reported as skipped.
 """
 
 from __future__ import annotations
@@ -393,10 +393,10 @@ def _full_disk(d: Path, mnt: Path, sh: Shared) -> list[dict]:
     return [_row("5", *FULL_DISK, r, checks, key=last, note=note)]
 
 
-def _fill(path: Path) -> int:
-    """Write zeros until 4 KiB are left on path's filesystem (or it refuses); bytes written."""
+def _fill(path: Path, leave: int = 4096) -> int:
+    """Write zeros until `leave` bytes are left on path's filesystem (or it refuses); bytes written."""
     st = os.statvfs(path.parent)
-    left, written = st.f_bavail * st.f_frsize - 4096, 0
+    left, written = st.f_bavail * st.f_frsize - leave, 0
     try:
         with open(path, "wb") as f:
             while written < left:
@@ -694,8 +694,104 @@ def case33_models(d: Path, sh: Shared) -> list[dict]:
     return rows
 
 
+
+# Issue 33's Python-API cases, run in a fresh interpreter against the shared bundle; prints one JSON object.
+_API_SCRIPT = """
+import json, sys, warnings
+import cv2, numpy as np
+from ffjax import export, inference
+
+bundle, split, exported = sys.argv[1:4]
+frames = np.load(sorted(__import__("pathlib").Path(split).glob("shard_*.npz"))[0])["image"][:2]
+bg = np.ascontiguousarray(cv2.imread(split + "/background.png")[..., ::-1])
+warnings.simplefilter("ignore")
+out = {}
+p = inference.load(bundle)
+buf = bg.copy()
+p.set_background(buf)
+before = p.predict(frames)
+buf[:] = 0  # a camera reading its next frame into the same buffer
+out["unchanged"] = bool(np.array_equal(p.predict(frames), before))
+try:
+    p.background[0, 0, 0] = 1
+    out["read_only"] = False
+except ValueError:
+    out["read_only"] = True
+out["depth_of_0"] = list(p.predict_depth(frames[:0]).shape)
+out["forces_of_0"] = list(p.predict(frames[:0]).shape)
+export.save(p, exported, batch=1)
+fn = export.load(exported)
+rgba = np.concatenate([frames[:1], frames[:1, ..., :1]], -1)
+for name, args in (("batch_2", (frames, bg)), ("rgba", (rgba, bg)), ("gray_background", (frames[:1], bg[..., 0]))):
+    try:
+        fn(*args)
+        out[name] = "no error"
+    except ValueError as e:
+        out[name] = "ValueError: " + str(e)
+    except Exception as e:
+        out[name] = type(e).__name__ + ": " + str(e)[:200]
+out["export_of_0"] = list(fn(frames[:0], bg).shape)
+print(json.dumps(out))
+"""
+
+
+def case33_api(d: Path, sh: Shared) -> list[dict]:
+    """Issue 33's Python-API cases (a kept background, 0 frames, export misuse) and live on a real full disk."""
+    r = _cli(d, "33-api", sh.env, "-c", _API_SCRIPT, sh.bundle, sh.data / "val", d / "f1.jaxexport", module=False)
+    got = json.loads((r["out"].strip().splitlines() or ["{}"])[-1]) if r["rc"] == 0 else {}
+    size = list(json.loads((sh.bundle / "model.json").read_text())["frame_size"])
+    no_tb = {"no 'Traceback'": "Traceback" not in r["err"]}
+    rows = [
+        _row("33-1", "`Predictor.set_background(buf)`, then `buf[:] = 0`", "later predictions unchanged; "
+             "the kept background read-only", r, {"rc 0": r["rc"] == 0, "predictions unchanged": got.get("unchanged")
+                                                   is True, "read-only": got.get("read_only") is True},
+             key=f"unchanged: {got.get('unchanged')}, read-only: {got.get('read_only')}"),
+        _row("33-7h", "`predict_depth` and `predict` on 0 frames", f"shapes (0, {size[0]}, {size[1]}) and (0, 3)",
+             r, {"depth (0, H, W)": got.get("depth_of_0") == [0, *size], "forces (0, 3)": got.get("forces_of_0") ==
+                 [0, 3], **no_tb}, key=f"depth {got.get('depth_of_0')}, forces {got.get('forces_of_0')}")]
+    for tag, case, must in (("33-7i", "batch_2", ["f1.jaxexport", "batches of exactly 1", "--batch 0"]),
+                            ("33-7j", "rgba", ["f1.jaxexport", "alpha"]),
+                            ("33-7k", "gray_background", ["f1.jaxexport", "background must be (H, W, 3)"])):
+        msg = got.get(case, "")
+        what = {"batch_2": "a `--batch 1` export called with 2 frames", "rgba": "an export called with RGBA frames",
+                "gray_background": "an export called with a one-channel background"}[case]
+        rows.append(_row(tag, what, "ValueError naming the file and the fix", r,
+                         {"ValueError": msg.startswith("ValueError"), **{f"says '{m}'": m in msg for m in must}},
+                         key=msg[:240]))
+    rows.append(_row("33-7l", "an export called with 0 frames", "shape (0, 3)", r,
+                     {"(0, 3)": got.get("export_of_0") == [0, 3]}, key=f"{got.get('export_of_0')}"))
+    return rows + _live_full_disk(d, sh)
+
+
+LIVE_FULL = ("`live --video V --out O` with O on a 1 MiB tmpfs filled to 64 KiB free",
+             "rc 1, one error line naming the file; forces.csv whole rows only; no OpenCV write warnings")
+
+
+def _live_full_disk(d: Path, sh: Shared) -> list[dict]:
+    """Issue 33 (6) on a real full disk: a 1 MiB tmpfs (root only; skipped where mounting fails)."""
+    import csv
+
+    mnt = d / "tmpfs"
+    mnt.mkdir()
+    m = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)], capture_output=True, text=True)
+    if m.returncode:
+        return [_skipped("33-6", *LIVE_FULL, f"mount failed: {(m.stderr or m.stdout).strip()[:200]}")]
+    try:
+        _fill(mnt / "filler", leave=64 << 10)
+        r = _cli(d, "33-6", sh.env, "ffjax.live", "--checkpoint", sh.bundle, "--video", sh.video, "--headless",
+                 "--print-every", 0, "--out", mnt / "out")
+        path = mnt / "out" / "forces.csv"
+        text = path.read_bytes().decode(errors="replace") if path.is_file() else ""
+        lines = list(csv.reader(text.splitlines()))
+        whole = bool(lines) and text.endswith("\n") and all(len(ln) == len(lines[0]) for ln in lines)
+        checks = {**_error_checks(r, (1,), ["no space left", str(mnt / "out")]), "whole rows": whole,
+                  "no 'Failed to write'": "Failed to write" not in r["err"]}
+        return [_row("33-6", *LIVE_FULL, r, checks, note=f"forces.csv: {max(len(lines) - 1, 0)} rows")]
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
 CASES = [("1", case1), ("2", case2), ("3", case3), ("4", case4), ("5", case5), ("6", case6), ("7", case7_inputs),
-         ("7", case7_models), ("8", case8), ("9", case9), ("33", case33), ("33", case33_models)]
+         ("7", case7_models), ("8", case8), ("9", case9), ("33", case33), ("33", case33_models), ("33", case33_api)]
 
 
 # ---- driver and report --------------------------------------------------------------------------------
