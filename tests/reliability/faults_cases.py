@@ -763,7 +763,7 @@ def case33_api(d: Path, sh: Shared) -> list[dict]:
     return rows + _live_full_disk(d, sh)
 
 
-LIVE_FULL = ("`live --video V --out O` with O on a 1 MiB tmpfs filled to 64 KiB free",
+LIVE_FULL = ("`live --video V --out O` with O on a 1 MiB tmpfs filled to 8 KiB free",
              "rc 1, one error line naming the file; forces.csv whole rows only; no OpenCV write warnings")
 
 
@@ -777,7 +777,7 @@ def _live_full_disk(d: Path, sh: Shared) -> list[dict]:
     if m.returncode:
         return [_skipped("33-6", *LIVE_FULL, f"mount failed: {(m.stderr or m.stdout).strip()[:200]}")]
     try:
-        _fill(mnt / "filler", leave=64 << 10)
+        _fill(mnt / "filler", leave=8 << 10)
         r = _cli(d, "33-6", sh.env, "ffjax.live", "--checkpoint", sh.bundle, "--video", sh.video, "--headless",
                  "--print-every", 0, "--out", mnt / "out")
         path = mnt / "out" / "forces.csv"
