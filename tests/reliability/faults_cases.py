@@ -71,12 +71,13 @@ class _Payload:
 # ---- running commands ---------------------------------------------------------------------------------
 
 
-def _start(folder: Path, name: str, env: dict, *args, module: bool = True, group: bool = False) -> subprocess.Popen:
-    """Start `python -m args` (`python args` if not `module`) from the repository root, stdout and stderr to
-    folder/name.stdout and .stderr; group: in a process group of its own (a terminal's Ctrl-C goes to a group)."""
+def _start(folder: Path, name: str, env: dict, *args, module: bool = True, group: bool = False,
+           cwd: Path = common.ROOT) -> subprocess.Popen:
+    """Start `python -m args` (`python args` if not `module`) from `cwd` (the repository root), stdout and stderr
+    to folder/name.stdout and .stderr; group: in a process group of its own (a terminal's Ctrl-C goes to a group)."""
     args = ["-m"] * module + [str(a) for a in args]
     with open(folder / f"{name}.stdout", "w") as out, open(folder / f"{name}.stderr", "w") as err:
-        p = subprocess.Popen([sys.executable, *args], env=env, cwd=common.ROOT, stdout=out, stderr=err,
+        p = subprocess.Popen([sys.executable, *args], env=env, cwd=cwd, stdout=out, stderr=err,
                              start_new_session=group)
     p.logs, p.cmd, p.t0 = (folder / f"{name}.stdout", folder / f"{name}.stderr"), "python " + " ".join(args), \
         time.perf_counter()
@@ -760,7 +761,23 @@ def case33_api(d: Path, sh: Shared) -> list[dict]:
                          key=msg[:240]))
     rows.append(_row("33-7l", "an export called with 0 frames", "shape (0, 3)", r,
                      {"(0, 3)": got.get("export_of_0") == [0, 3]}, key=f"{got.get('export_of_0')}"))
-    return rows + _live_full_disk(d, sh)
+    return rows + _live_full_disk(d, sh) + [_data_home(d, sh)]
+
+
+def _data_home(d: Path, sh: Shared) -> dict:
+    """Issue 33 (8): `ffjax.train` without --data, started from another folder, simulates into $FFJAX_DATA."""
+    work, cache = d / "work", d / "cache"
+    work.mkdir()
+    smoke = (*SMALL_DATA, "train.epochs=1")
+    p = _start(d, "33-8", {**sh.env, "FFJAX_DATA": str(cache), "PYTHONPATH": str(common.ROOT)}, "ffjax.train",
+               "--preset", "smoke", "--method", METHOD, "--out", d / "run", "--quiet",
+               *(a for s in smoke for a in ("--set", s)), cwd=work)
+    r = _wait(p)
+    made = sorted(str(x.relative_to(d)) for x in work.rglob("*"))
+    return _row("33-8", "`ffjax.train --preset smoke` without --data, started in an empty folder, FFJAX_DATA=CACHE",
+                "rc 0; the dataset in CACHE/smoke; nothing in the working folder", r,
+                {"rc 0": r["rc"] == 0, "shards in CACHE/smoke": bool(list((cache / "smoke").rglob("shard_*.npz"))),
+                 "working folder empty": not made}, key=f"working folder: {made or 'empty'}")
 
 
 LIVE_FULL = ("`live --video V --out O` with O on a 1 MiB tmpfs filled to 8 KiB free",
