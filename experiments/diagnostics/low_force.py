@@ -171,28 +171,39 @@ def plot(res: dict, path: Path) -> Path:
     from experiments.tables import save_png
 
     models = res.get("models") or {}
-    fig, axes = plt.subplots(1, 1 + len(models), figsize=(5.2 * (1 + len(models)), 3.9), squeeze=False)
-    ax = axes[0, 0]
-    cmap = plt.get_cmap("viridis")
-    for i, b in enumerate(BODIES):
+    n = 1 + len(models)
+    cols = min(3, n)  # rows of at most 3 panels: five side by side are too small to read
+    rows_n = -(-n // cols)
+    fig, axes = plt.subplots(rows_n, cols, figsize=(5.2 * cols, 3.9 * rows_n), squeeze=False)
+    axes = axes.ravel()
+    for extra in axes[n:]:
+        extra.set_visible(False)
+    ax = axes[0]
+    colour = {b: plt.get_cmap("tab10")(i) for i, b in enumerate(BODIES)}  # distinct hues, none too pale
+    for b in BODIES:
         rows = [r for r in res["physics"] if r["body"] == b]
-        ax.plot([r["fz"] for r in rows], [r["crb_rel"] for r in rows], "o-", color=cmap(i / max(len(BODIES) - 1, 1)),
-                label=b, ms=4)
+        ax.plot([r["fz"] for r in rows], [r["crb_rel"] for r in rows], "o-", color=colour[b], label=b, ms=4)
     ax.axhline(0.1, color="0.5", ls=":", lw=1, label="10% of Fz")
     ax.set(xscale="log", yscale="log", xlabel="Fz (N)", ylabel="Cramer-Rao bound on Fz / Fz",
            title="what one frame can tell (noise-limited)")
     ax.set_xticks(LOADS_N, [f"{f:g}" for f in LOADS_N])
     ax.legend(fontsize=7)
+    lows, highs = [0.0], [0.0]
     for k, (run, m) in enumerate(models.items(), start=1):  # noqa: B007 (one panel per run)
-        ax = axes[0, k]
-        for i, b in enumerate(BODIES):
+        ax = axes[k]
+        for b in BODIES:
             rows = [r for r in m["rows"] if r["body"] == b]
             ax.errorbar([r["fz"] for r in rows], [r["bias_n"] for r in rows], yerr=[r["std_n"] for r in rows],
-                        fmt="o-", color=cmap(i / max(len(BODIES) - 1, 1)), ms=4, capsize=2, label=b)
+                        fmt="o-", color=colour[b], ms=4, capsize=2, label=b)
+            lows += [r["bias_n"] - r["std_n"] for r in rows]
+            highs += [r["bias_n"] + r["std_n"] for r in rows]
         ax.axhline(0, color="0.5", lw=1)
         ax.set(xscale="log", xlabel="Fz (N)", ylabel="mean signed Fz error (N)",
                title=f"{style.name(m['method'])}: what it reads", xticks=LOADS_N)
         ax.set_xticklabels([f"{f:g}" for f in LOADS_N])
+    pad = 0.05 * (max(highs) - min(lows))
+    for ax in axes[1:n]:  # one scale for every model, so their panels compare at a glance
+        ax.set_ylim(min(lows) - pad, max(highs) + pad)
     from experiments import common
 
     common.stamp(fig, res["preset"], [], res.get("commit", "?"))
