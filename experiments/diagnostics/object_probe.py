@@ -95,9 +95,14 @@ def readout(run, data: Path) -> dict:
 
 
 def run_label(run) -> str:
-    """'ablation-quick-e30 dino_rd' for results/ablation-quick-e30/runs/dino_rd/seed0."""
+    """'DINO RD, seed 0 (ablation-quick-e30)' for results/ablation-quick-e30/runs/dino_rd/seed0."""
+    from experiments import style
+
     parts = Path(run).parts
-    return f"{parts[-4]} {parts[-2]}" if len(parts) >= 4 and parts[-3] == "runs" else str(run)
+    if len(parts) >= 4 and parts[-3] == "runs":
+        seed = parts[-1].removeprefix("seed")
+        return f"{style.name(parts[-2])}, seed {seed} ({parts[-4]})"
+    return str(run)
 
 
 def markdown(res: dict) -> str:
