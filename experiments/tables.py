@@ -297,10 +297,18 @@ def _hatches(t1: dict) -> dict:
 
 
 def save_png(fig, path: Path) -> Path:
-    """Tight layout, atomic write (tmp + rename), close."""
+    """Tight layout (the axes below the figure's title), atomic write (tmp + rename), close."""
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
+    title = fig._suptitle  # on a tall grid tight_layout can put the top row's titles under the figure's title
+    if title is not None and title.get_text():
+        renderer = fig.canvas.get_renderer()
+        below = title.get_window_extent(renderer).y0 / fig.bbox.height
+        axes = [ax for ax in fig.axes if ax.get_visible()]
+        top = max((ax.get_tightbbox(renderer).y1 / fig.bbox.height for ax in axes), default=0.0)
+        if top > below - 0.005:
+            fig.tight_layout(rect=(0, 0, 1, below - 0.01))
     tmp = path.with_name(f".{path.stem}.tmp.png")
     fig.savefig(tmp, dpi=110)
     plt.close(fig)
