@@ -12,6 +12,7 @@ from collections.abc import Callable
 # what every experiment's numbers come from beside the code its command runs: the presets (read by name) and the
 # dependencies; for a command outside the import graph (tests/), the whole library and shared machinery
 _CORE = ("configs", "pyproject.toml")
+_DRAWS = ("experiments/tables.py", "experiments/style.py")  # a diagnostic that only draws with them
 _WHOLE = ("ffjax", "experiments/common.py", "experiments/kernel.py", "experiments/paper_numbers.py")
 
 
@@ -199,10 +200,10 @@ EXPERIMENTS = (
     Experiment("contact_probe", "experiments.diagnostics.contact_probe",
                "Where a contact's edge is read: the layer's contact against the rendered frame",
                _has("edge_mm", "per_shape"), _replot_probe("contact_probe"),
-               in_pipeline=False),
+               figures=_DRAWS, in_pipeline=False),
     Experiment("layer_check", "experiments.diagnostics.layer_check",
                "Is the gel's solve converged in its margin and grid?", _has("margin_thicknesses"),
-               _replot_probe("layer_check"), in_pipeline=False),
+               _replot_probe("layer_check"), figures=_DRAWS, in_pipeline=False),
     Experiment("object_probe", "experiments.diagnostics.object_probe",
                "What a trained model reads of an object: signal against readout", _has("signal", "readout"),
                _replot_probe("object_probe"), in_pipeline=False),
@@ -213,15 +214,15 @@ EXPERIMENTS = (
     Experiment("rest_recording", "experiments.diagnostics.rest_recording",
                "A sensor at rest: a real GelSight Mini's noise, fixed pattern, drift and colour against the simulator",
                _has("sources", "highpass_px"), _replot_probe("rest_recording"),
-               in_pipeline=False, takes_common_flags=False),
+               figures=_DRAWS, in_pipeline=False, takes_common_flags=False),
     Experiment("buried_load_check", "experiments.diagnostics.buried_load_check",
                "Where a body in stick holds the gel: the layer's stick solve against a finite-element model",
                _has("cases", "all_within_band"), _replot_probe("buried_load_check"),
-               in_pipeline=False, takes_common_flags=False),
+               figures=_DRAWS, in_pipeline=False, takes_common_flags=False),
     Experiment("low_force", "experiments.diagnostics.low_force",
                "How well can a frame tell Fz at light loads on wide contacts, and what do models read there?",
                _has("physics", "render_size"), _replot_probe("low_force"),
-               in_pipeline=False, takes_common_flags=False),
+               figures=_DRAWS, in_pipeline=False, takes_common_flags=False),
     Experiment("faults", "tests.reliability.faults",
                "What holds and what fails when a user or a fault misuses the tools", _has("kills_per_part"),
                numbers=("tests/reliability",), in_pipeline=False),
