@@ -52,9 +52,11 @@ def test_ctrl_c_during_dataset_generation_is_one_line(tmp_path):
 
     out = tmp_path / "data"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    # shards of 8 presses: the first lands early and most of the work is still ahead when Ctrl-C comes (with the
+    # preset's 64, on a busy machine the last shards could finish before the signal did: exit 0, a flaky test)
     p = subprocess.Popen([sys.executable, "-m", "ffjax.simulate", "--preset", "smoke", "--out", str(out), "--workers",
-                          "2", "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                         cwd=ROOT, start_new_session=True)
+                          "2", "--quiet", "--set", "data.shard_size=8"], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT, start_new_session=True)
     t0 = time.time()
     while time.time() - t0 < 300 and not list(out.rglob("shard_*.npz")) and p.poll() is None:
         time.sleep(0.2)
