@@ -78,13 +78,13 @@ def _start(folder: Path, name: str, env: dict, *args, module: bool = True, group
     args = ["-m"] * module + [str(a) for a in args]
     with open(folder / f"{name}.stdout", "w") as out, open(folder / f"{name}.stderr", "w") as err:
         p = subprocess.Popen([sys.executable, *args], env=env, cwd=cwd, stdout=out, stderr=err,
-                             start_new_session=group, preexec_fn=_terminal_sigint if group else None)
+                             start_new_session=group, preexec_fn=terminal_sigint if group else None)
     p.logs, p.cmd, p.t0 = (folder / f"{name}.stdout", folder / f"{name}.stderr"), "python " + " ".join(args), \
         time.perf_counter()
     return p
 
 
-def _terminal_sigint() -> None:
+def terminal_sigint() -> None:
     """Ctrl-C as in a terminal, whatever this harness inherited (a script's background job ignores SIGINT)."""
     import signal
 

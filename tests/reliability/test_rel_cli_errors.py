@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import faults_cases
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -44,14 +45,6 @@ def test_bad_arguments_are_one_line_errors(tmp_path, cmd, rc, fragment):
     assert "Traceback" not in p.stderr
 
 
-def _terminal_sigint():
-    """Ctrl-C as in a terminal: a suite started in the background of a script inherits SIGINT ignored, and so
-    would the command under test."""
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 def test_ctrl_c_during_dataset_generation_is_one_line(tmp_path):
     """Issue 33 (7): Ctrl-C (SIGINT to the whole process group, as a terminal sends it) while two workers render:
     one line, exit 130, the finished shards kept (it printed ~104 lines and 3 tracebacks)."""
@@ -65,7 +58,7 @@ def test_ctrl_c_during_dataset_generation_is_one_line(tmp_path):
     p = subprocess.Popen([sys.executable, "-m", "ffjax.simulate", "--preset", "smoke", "--out", str(out), "--workers",
                           "2", "--quiet", "--set", "data.shard_size=8"], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT, start_new_session=True,
-                         preexec_fn=_terminal_sigint)
+                         preexec_fn=faults_cases.terminal_sigint)
     t0 = time.time()
     while time.time() - t0 < 300 and not list(out.rglob("shard_*.npz")) and p.poll() is None:
         time.sleep(0.2)
