@@ -169,3 +169,23 @@ def test_one_writer_per_folder_and_strays_are_named(root, cfg, tmp_path):
     shutil.copy(copy / "val" / "shard_00000.npz", copy / "val" / "shard_00007.npz")
     with pytest.raises(DataError, match=r"val holds shard\(s\) this config does not write \(shard_00007\.npz\)"):
         dataset.generate(cfg, copy, progress=False)
+
+
+def test_seating_of_training_presses(root, cfg):
+    """low_force's seating table: a tilted small sphere makes about the contact it makes untilted at the same Fz (a
+    sphere is the same body at any tilt), while a tilted 14 mm face touches on its edge, so the cube is less seated."""
+    from experiments.diagnostics import low_force
+
+    got = low_force.training_presses(cfg, root)
+    assert set(got) == set(sim.INDENTERS)
+
+    def median_ratio(shape):
+        ratios = [b["median_ratio"] for b in got[shape]["seating"] if b["n"]]
+        assert ratios and sum(b["n"] for b in got[shape]["seating"]) == got[shape]["n"]
+        return float(np.median(ratios))
+
+    assert 0.8 < median_ratio("sphere_small") < 1.2
+    assert median_ratio("cube") < 0.8 * median_ratio("sphere_small")
+    report = low_force.report({"preset": "smoke", "sensor": "mini-1-gel1", "render_size": [24, 32], "commit": "x",
+                               "physics": [], "training": got})
+    assert "How seated the training presses are" in report

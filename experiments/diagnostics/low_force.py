@@ -11,7 +11,10 @@ read, on the training's and the downstream tasks' bodies.
    the body and its pose; a model knows neither, so its spread is larger (a wide body lightly pressed and a narrow
    one more firmly can make similar frames).
 2. With --data (a dataset folder): how many training presses are light (Fz below 1 N and 2 N) and how wide their
-   contacts are, per indenter.
+   contacts are, per indenter; and how seated they are: each press's contact area against the same indenter's
+   pressed centred and untilted at the same Fz (interpolated over SEAT_LOADS_N), per Fz band. A tilted face
+   touches on its edge until the approach exceeds its width x sin(tilt), so a flat indenter's ratio says how often
+   training shows that face flat on the gel; a sphere's stays near 1 at any tilt.
 3. With --runs (training run folders): each run's mean signed Fz error on noisy frames of the same presses (8
    camera-noise draws per load): an offset at light load where the bound is large is the model answering from its
    training prior where the frame says little.
@@ -34,6 +37,9 @@ LOADS_N = (0.1, 0.25, 0.5, 1.0, 2.0, 4.0)
 STEP = 0.1  # relative: the frame's derivative by Fz from presses at Fz (1 -+ STEP)
 DRAWS = 8  # camera-noise draws per load for the models' read
 STREAM = 2000  # render seeds no dataset split uses
+SEAT_LOADS_N = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 12.0, 16.0)  # the untilted reference presses, interpolated between
+FZ_BANDS_N = ((0.0, 2.0), (2.0, 5.0), (5.0, 10.0), (10.0, 16.0))
+SEATED = 0.8  # a press whose contact is at least this share of the untilted one's counts as seated
 
 
 def _body(name: str):
@@ -67,21 +73,45 @@ def physics(cfg: dict) -> list:
     return rows
 
 
-def training_presses(data_root: Path) -> dict:
-    """Per indenter: the share of training presses below 1 and 2 N and their median contact area (mm2)."""
+def training_presses(cfg: dict, data_root: Path) -> dict:
+    """Per indenter: the share of training presses below 1 and 2 N, their median contact area (mm2), and per Fz band
+    (FZ_BANDS_N) how their contact compares with the indenter pressed centred and untilted at the same Fz: the
+    median ratio and the share of presses at least SEATED of it."""
     from ffjax import data
     from ffjax.sim import dataset
 
     split = data.open_split(dataset.split_dir(data_root, "train"))
-    shapes, fz, area = split.column("shape"), split.forces[:, 2], split.column("contact_area_mm2")
+    shapes, fz, area = split.column("shape"), split.column("force_applied")[:, 2], split.column("contact_area_mm2")
     out = {}
     for s in sorted(set(shapes.tolist())):
         m = shapes == s
         light = m & (fz < 1.0)
+        ratio = area[m] / np.interp(fz[m], SEAT_LOADS_N, untilted_areas(cfg, s))
+        bands = []
+        for lo, hi in FZ_BANDS_N:
+            r = ratio[(fz[m] >= lo) & (fz[m] < hi)]
+            bands.append({"fz_n": [lo, hi], "n": int(r.size), "median_ratio": float(np.median(r)) if r.size else None,
+                          "seated": float(np.mean(r >= SEATED)) if r.size else None})
         out[s] = {"n": int(m.sum()), "below_1n": float(np.mean(fz[m] < 1.0)), "below_2n": float(np.mean(fz[m] < 2.0)),
                   "median_area_mm2_below_1n": float(np.median(area[light])) if light.any() else None,
-                  "median_area_mm2": float(np.median(area[m]))}
+                  "median_area_mm2": float(np.median(area[m])), "seating": bands}
     return out
+
+
+def untilted_areas(cfg: dict, shape: str) -> list:
+    """Contact area (mm2) of `shape` pressed centred and untilted at each of SEAT_LOADS_N, as the dataset presses it."""
+    from ffjax import sim
+    from ffjax.sim import dataset
+
+    sensor = dataset.sensor_of(cfg["data"]["train_sensor"], cfg["data"])
+    size = dataset.render_size(sensor, cfg["data"]["render_size"])
+    n = len(SEAT_LOADS_N)
+    got = sim.press_many([sim.get_shape(shape)] * n, sensor, [(0.0, 0.0, f) for f in SEAT_LOADS_N], [0.0] * n,
+                         [0.0] * n, [0.0] * n, [(0.0, 0.0)] * n, [STREAM] * n, size, noise=False)
+    for g in got:
+        if isinstance(g, ValueError):
+            raise g
+    return [float(g.meta["contact_area_mm2"]) for g in got]
 
 
 def model_reads(cfg: dict, runs: list) -> dict:
@@ -117,7 +147,7 @@ def run(cfg: dict, data_root: Path | None, runs: list) -> dict:
     res = {"preset": cfg["preset"], "sensor": cfg["data"]["train_sensor"],
            "render_size": list(cfg["data"]["render_size"]), "physics": physics(cfg)}
     if data_root:
-        res["training"] = training_presses(data_root)
+        res["training"] = training_presses(cfg, data_root)
     if runs:
         res["models"] = model_reads(cfg, runs)
     return res
@@ -151,6 +181,18 @@ def report(res: dict) -> str:
             a1 = v["median_area_mm2_below_1n"]
             lines.append(f"| {s} | {v['n']} | {100 * v['below_1n']:.0f}% | {100 * v['below_2n']:.0f}% | "
                          f"{'-' if a1 is None else f'{a1:.1f}'} | {v['median_area_mm2']:.1f} |")
+        lines += ["", "## How seated the training presses are", "",
+                  "Each press's contact area over the same indenter's pressed centred and untilted at the same Fz: "
+                  f"median, and in brackets the share of presses at least {SEATED:.0%} of it (seated). A tilted "
+                  "face touches on its edge until the approach exceeds its width x sin(tilt); a sphere is the same "
+                  "body at any tilt, but a large one tilted about the tool's tip touches R sin(tilt) aside, partly "
+                  "beyond the pad.", "",
+                  "| indenter | " + " | ".join(f"Fz {lo:g}-{hi:g} N" for lo, hi in FZ_BANDS_N) + " |",
+                  "|---|" + "---|" * len(FZ_BANDS_N)]
+        for s, v in res["training"].items():
+            lines.append(f"| {s} | " + " | ".join("-" if b["median_ratio"] is None else
+                                                 f"{b['median_ratio']:.2f} ({100 * b['seated']:.0f}%)"
+                                                 for b in v["seating"]) + " |")
     for run, m in (res.get("models") or {}).items():
         lines += ["", f"## {m['method']}: mean signed Fz error (N) ± std over {DRAWS} noise draws ({run})", "",
                   "| body | " + " | ".join(f"{f:g} N" for f in LOADS_N) + " |", "|---|" + "---|" * len(LOADS_N)]
@@ -171,7 +213,8 @@ def plot(res: dict, path: Path) -> Path:
     from experiments.tables import save_png
 
     models = res.get("models") or {}
-    n = 1 + len(models)
+    seating = 1 if res.get("training") else 0
+    n = 1 + seating + len(models)
     cols = min(3, n)  # rows of at most 3 panels: five side by side are too small to read
     rows_n = -(-n // cols)
     fig, axes = plt.subplots(rows_n, cols, figsize=(5.2 * cols, 3.9 * rows_n), squeeze=False)
@@ -188,8 +231,10 @@ def plot(res: dict, path: Path) -> Path:
            title="what one frame can tell (noise-limited)")
     ax.set_xticks(LOADS_N, [f"{f:g}" for f in LOADS_N])
     ax.legend(fontsize=7)
+    if seating:
+        _seating_panel(axes[1], res["training"])
     lows, highs = [0.0], [0.0]
-    for k, (run, m) in enumerate(models.items(), start=1):  # noqa: B007 (one panel per run)
+    for k, (run, m) in enumerate(models.items(), start=1 + seating):  # noqa: B007 (one panel per run)
         ax = axes[k]
         for b in BODIES:
             rows = [r for r in m["rows"] if r["body"] == b]
@@ -202,7 +247,7 @@ def plot(res: dict, path: Path) -> Path:
                title=f"{style.name(m['method'])}: what it reads", xticks=LOADS_N)
         ax.set_xticklabels([f"{f:g}" for f in LOADS_N])
     pad = 0.05 * (max(highs) - min(lows))
-    for ax in axes[1:n]:  # one scale for every model, so their panels compare at a glance
+    for ax in axes[1 + seating:n]:  # one scale for every model, so their panels compare at a glance
         ax.set_ylim(min(lows) - pad, max(highs) + pad)
     from experiments import common
 
@@ -232,3 +277,18 @@ if __name__ == "__main__":
     from ffjax import cli
 
     sys.exit(cli.run(main))
+
+
+def _seating_panel(ax, training: dict) -> None:
+    """Median contact of the training presses over the untilted press's, per indenter and Fz band."""
+    import matplotlib.pyplot as plt
+
+    mid = [(lo + hi) / 2 for lo, hi in FZ_BANDS_N]
+    for i, (s, v) in enumerate(training.items()):
+        ratio = [np.nan if b["median_ratio"] is None else b["median_ratio"] for b in v["seating"]]
+        ax.plot(mid, ratio, "os^vD<>ph*"[i % 10] + "-", color=plt.get_cmap("tab10")(i % 10), ms=4, label=s)
+    ax.axhline(SEATED, color="0.5", ls=":", lw=1, label=f"seated ({SEATED:.0%})")
+    ax.set(xlabel="Fz band centre (N)", ylabel="contact / untilted contact at the same Fz (median)",
+           title="training presses: how seated", ylim=(0, None))
+    ax.set_xticks(mid, [f"{lo:g}-{hi:g}" for lo, hi in FZ_BANDS_N])
+    ax.legend(fontsize=6, ncol=2)
