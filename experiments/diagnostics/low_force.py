@@ -82,6 +82,8 @@ def training_presses(cfg: dict, data_root: Path) -> dict:
 
     split = data.open_split(dataset.split_dir(data_root, "train"))
     shapes, fz, area = split.column("shape"), split.column("force_applied")[:, 2], split.column("contact_area_mm2")
+    gel = dataset.sensor_of(cfg["data"]["train_sensor"], cfg["data"]).gel
+    strain = split.column("penetration_mm") / gel.thickness_mm
     out = {}
     for s in sorted(set(shapes.tolist())):
         m = shapes == s
@@ -90,12 +92,17 @@ def training_presses(cfg: dict, data_root: Path) -> dict:
         bands = []
         for lo, hi in FZ_BANDS_N:
             r = ratio[(fz[m] >= lo) & (fz[m] < hi)]
-            bands.append({"fz_n": [lo, hi], "n": int(r.size), "median_ratio": float(np.median(r)) if r.size else None,
+            bands.append({"fz_n": [lo, hi], "n": int(r.size), "median_ratio": _median(r),
                           "seated": float(np.mean(r >= SEATED)) if r.size else None})
         out[s] = {"n": int(m.sum()), "below_1n": float(np.mean(fz[m] < 1.0)), "below_2n": float(np.mean(fz[m] < 2.0)),
-                  "median_area_mm2_below_1n": float(np.median(area[light])) if light.any() else None,
-                  "median_area_mm2": float(np.median(area[m])), "seating": bands}
+                  "median_area_mm2_below_1n": _median(area[light]),
+                  "median_area_mm2": float(np.median(area[m])), "seating": bands,
+                  "approach_over_t_top_band": _median(strain[m & (fz >= FZ_BANDS_N[-1][0])])}
     return out
+
+
+def _median(x: np.ndarray) -> float | None:
+    return float(np.median(x)) if x.size else None
 
 
 def untilted_areas(cfg: dict, shape: str) -> list:
@@ -153,6 +160,10 @@ def run(cfg: dict, data_root: Path | None, runs: list) -> dict:
     return res
 
 
+def _fmt(x: float | None) -> str:
+    return "-" if x is None else f"{x:.2f}"
+
+
 def readable_from(rows: list, body: str, rel: float = 0.1) -> float | None:
     """The lightest load at which the bound is within `rel` of Fz (None if none)."""
     ok = [r["fz"] for r in rows if r["body"] == body and r["crb_rel"] <= rel]
@@ -187,12 +198,13 @@ def report(res: dict) -> str:
                   "face touches on its edge until the approach exceeds its width x sin(tilt); a sphere is the same "
                   "body at any tilt, but a large one tilted about the tool's tip touches R sin(tilt) aside, partly "
                   "beyond the pad.", "",
-                  "| indenter | " + " | ".join(f"Fz {lo:g}-{hi:g} N" for lo, hi in FZ_BANDS_N) + " |",
-                  "|---|" + "---|" * len(FZ_BANDS_N)]
+                  "| indenter | " + " | ".join(f"Fz {lo:g}-{hi:g} N" for lo, hi in FZ_BANDS_N)
+                  + f" | approach / gel thickness, Fz >= {FZ_BANDS_N[-1][0]:g} N (median) |",
+                  "|---|" + "---|" * (len(FZ_BANDS_N) + 1)]
         for s, v in res["training"].items():
             lines.append(f"| {s} | " + " | ".join("-" if b["median_ratio"] is None else
                                                  f"{b['median_ratio']:.2f} ({100 * b['seated']:.0f}%)"
-                                                 for b in v["seating"]) + " |")
+                                                 for b in v["seating"]) + f" | {_fmt(v['approach_over_t_top_band'])} |")
     for run, m in (res.get("models") or {}).items():
         lines += ["", f"## {m['method']}: mean signed Fz error (N) ± std over {DRAWS} noise draws ({run})", "",
                   "| body | " + " | ".join(f"{f:g} N" for f in LOADS_N) + " |", "|---|" + "---|" * len(LOADS_N)]
