@@ -267,6 +267,21 @@ def plot(res: dict, path: Path) -> Path:
     return save_png(fig, Path(path))
 
 
+def _seating_panel(ax, training: dict) -> None:
+    """Median contact of the training presses over the untilted press's, per indenter and Fz band."""
+    import matplotlib.pyplot as plt
+
+    mid = [(lo + hi) / 2 for lo, hi in FZ_BANDS_N]
+    for i, (s, v) in enumerate(training.items()):
+        ratio = [np.nan if b["median_ratio"] is None else b["median_ratio"] for b in v["seating"]]
+        ax.plot(mid, ratio, "os^vD<>ph*"[i % 10] + "-", color=plt.get_cmap("tab10")(i % 10), ms=4, label=s)
+    ax.axhline(SEATED, color="0.5", ls=":", lw=1, label=f"seated ({SEATED:.0%})")
+    ax.set(xlabel="Fz band centre (N)", ylabel="contact / untilted contact at the same Fz (median)",
+           title="training presses: how seated", ylim=(0, None))
+    ax.set_xticks(mid, [f"{lo:g}-{hi:g}" for lo, hi in FZ_BANDS_N])
+    ax.legend(fontsize=6, ncol=2)
+
+
 def main(argv=None) -> dict:
     from experiments import common
     from ffjax import cli
@@ -290,17 +305,3 @@ if __name__ == "__main__":
 
     sys.exit(cli.run(main))
 
-
-def _seating_panel(ax, training: dict) -> None:
-    """Median contact of the training presses over the untilted press's, per indenter and Fz band."""
-    import matplotlib.pyplot as plt
-
-    mid = [(lo + hi) / 2 for lo, hi in FZ_BANDS_N]
-    for i, (s, v) in enumerate(training.items()):
-        ratio = [np.nan if b["median_ratio"] is None else b["median_ratio"] for b in v["seating"]]
-        ax.plot(mid, ratio, "os^vD<>ph*"[i % 10] + "-", color=plt.get_cmap("tab10")(i % 10), ms=4, label=s)
-    ax.axhline(SEATED, color="0.5", ls=":", lw=1, label=f"seated ({SEATED:.0%})")
-    ax.set(xlabel="Fz band centre (N)", ylabel="contact / untilted contact at the same Fz (median)",
-           title="training presses: how seated", ylim=(0, None))
-    ax.set_xticks(mid, [f"{lo:g}-{hi:g}" for lo, hi in FZ_BANDS_N])
-    ax.legend(fontsize=6, ncol=2)
