@@ -244,7 +244,7 @@ def plot(res: dict, path: Path) -> Path:
     ax.set_xticks(LOADS_N, [f"{f:g}" for f in LOADS_N])
     ax.legend(fontsize=7)
     if seating:
-        _seating_panel(axes[1], res["training"])
+        _seating_panel(axes[1], res["training"], colour)
     lows, highs = [0.0], [0.0]
     for k, (run, m) in enumerate(models.items(), start=1 + seating):  # noqa: B007 (one panel per run)
         ax = axes[k]
@@ -267,14 +267,16 @@ def plot(res: dict, path: Path) -> Path:
     return save_png(fig, Path(path))
 
 
-def _seating_panel(ax, training: dict) -> None:
-    """Median contact of the training presses over the untilted press's, per indenter and Fz band."""
-    import matplotlib.pyplot as plt
-
+def _seating_panel(ax, training: dict, colour: dict) -> None:
+    """Median contact of the training presses over the untilted press's, per indenter and Fz band; the bodies of the
+    other panels in their colours, the other indenters in greys told apart by marker."""
     mid = [(lo + hi) / 2 for lo, hi in FZ_BANDS_N]
+    others = [s for s in training if s not in colour]
     for i, (s, v) in enumerate(training.items()):
         ratio = [np.nan if b["median_ratio"] is None else b["median_ratio"] for b in v["seating"]]
-        ax.plot(mid, ratio, "os^vD<>ph*"[i % 10] + "-", color=plt.get_cmap("tab10")(i % 10), ms=4, label=s)
+        grey = str(round(0.2 + 0.5 * others.index(s) / max(len(others) - 1, 1), 2)) if s in others else None
+        ax.plot(mid, ratio, "os^vD<>ph*"[i % 10] + "-", color=colour.get(s, grey), ms=4, label=s,
+                lw=2 if s in colour else 1)
     ax.axhline(SEATED, color="0.5", ls=":", lw=1, label=f"seated ({SEATED:.0%})")
     ax.set(xlabel="Fz band centre (N)", ylabel="contact / untilted contact at the same Fz (median)",
            title="training presses: how seated", ylim=(0, None))
