@@ -140,45 +140,59 @@ def _fmt(ms: dict) -> str:
     return common.fmt(ms, 2)
 
 
-def _gap_noise(z: dict, b: dict) -> str:
-    """Whether a gap between two cells (mean_std dicts) exceeds the seeds' spread; a 1-seed cell is taken to
-    spread like the other (the only spread measured), and the sentence says so."""
+def _spread(z: dict, b: dict) -> tuple[float, str] | None:
+    """The seeds' spread of a gap between two cells (mean_std dicts) and how it was taken: a 1-seed cell is taken to
+    spread like the other (the only spread measured); None when neither has 2 seeds."""
     nz, nb = z.get("n", 1), b.get("n", 1)
     if nz > 1 and nb > 1:
-        spread, how = np.hypot(z["std"], b["std"]), "the seeds' spread"
-    elif max(nz, nb) > 1:
+        return float(np.hypot(z["std"], b["std"])), "the seeds' spread"
+    if max(nz, nb) > 1:
         known, n = (z, nz) if nz > 1 else (b, nb)
-        spread, how = np.hypot(known["std"], known["std"]), f"the {n}-seed spread taken for both"
-    else:
-        return ""
-    resolved = abs(b["mean"] - z["mean"]) > spread
-    return f"; the gap is {'larger' if resolved else 'NOT larger'} than {how} ({spread:.2f})"
+        return float(np.hypot(known["std"], known["std"])), f"the {n}-seed spread taken for both"
+    return None
+
+
+def _against_no_head(z: dict, b: dict) -> str:
+    """What a weighted cell does against no head: helps or hurts only when the gap exceeds the spread."""
+    gap = b["mean"] - z["mean"]
+    sp = _spread(z, b)
+    if sp is None:
+        return f"{'lower' if gap < 0 else 'higher'} by {abs(gap):.2f}, one seed each: no spread to judge it"
+    spread, how = sp
+    if abs(gap) <= spread:
+        return f"a tie with no head (gap {gap:+.2f} within {how}, {spread:.2f})"
+    return f"the head {'helps' if gap < 0 else 'hurts'} (gap {gap:+.2f} beyond {how}, {spread:.2f})"
 
 
 def finding(results: dict) -> str:
-    """Plain sentences from the numbers: beta = 0 against the best beta > 0 and the base's default."""
+    """Plain sentences from the numbers, per metric: no head against the base's default beta (the cells with the
+    most seeds) and against the best other beta, each judged against the seeds' spread."""
     pb = results["per_beta"]
     zero = pb.get("0")
     weighted = {k: v for k, v in pb.items() if v["beta"] > 0}
     if zero is None or not weighted:
         return "The sweep needs beta = 0 and at least one beta > 0 to say whether the depth head helps."
+    base_beta = f"{registry.get(results['base']).beta:g}"
     out = []
     for m in ("unseen_objects", "unseen_sensors", "digit"):
         z = zero[m]
         if not np.isfinite(z["mean"]):
             continue
-        best_k = min(weighted, key=lambda k: weighted[k][m]["mean"])
-        b = weighted[best_k][m]
-        rel = (b["mean"] - z["mean"]) / z["mean"] * 100
-        verdict = "helps" if rel < 0 else "does not help"
-        out.append(f"On {METRICS[m]} the depth head {verdict}: beta = 0 (no head) {z['mean']:.2f}% vs "
-                   f"{b['mean']:.2f}% at the best beta/alpha = {weighted[best_k]['ratio']:g} ({rel:+.0f}%)"
-                   f"{_gap_noise(z, b)}.")
-    base_beta = f"{registry.get(results['base']).beta:g}"
-    if base_beta in weighted and base_beta != "0":
-        d = weighted[base_beta]
-        out.append(f"At the default beta = {base_beta} ({d['paper_name']}): unseen objects "
-                   f"{d['unseen_objects']['mean']:.2f}%, unseen sensors {d['unseen_sensors']['mean']:.2f}%.")
+        parts = [f"On {METRICS[m]}, no head reads {_fmt(z)}%"]
+        if base_beta in weighted:
+            d = weighted[base_beta][m]
+            parts.append(f"the default beta/alpha = {weighted[base_beta]['ratio']:g} {_fmt(d)}%: "
+                         f"{_against_no_head(z, d)}")
+        others = {k: v for k, v in weighted.items() if k != base_beta}
+        if others:
+            k = min(others, key=lambda k: others[k][m]["mean"])
+            b = others[k][m]
+            seeds = f"{b.get('n', 1)} seed{'s' if b.get('n', 1) > 1 else ''}"
+            low = "; the lowest of several one-seed points is biased low" if b.get("n", 1) == 1 and len(others) > 1 \
+                else ""
+            parts.append(f"the lowest other beta/alpha, {others[k]['ratio']:g} ({seeds}), {_fmt(b)}%: "
+                         f"{_against_no_head(z, b)}{low}")
+        out.append("; ".join(parts) + ".")
     single = [k for k, v in pb.items() if len(v["per_seed"]) == 1]
     if len(single) == len(pb):
         out.append("One seed per beta: differences of a few tenths of a percent are within run-to-run noise "

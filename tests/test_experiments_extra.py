@@ -21,6 +21,23 @@ def test_variant_is_registry_data():
     assert v.name == "dino_rd_b3" and v.beta == 3 and v.depth_head and registry.get(v.name) == v
 
 
+def test_sweep_finding_judges_each_gap_against_the_spread():
+    """The sweep's sentences call a gap 'helps' or 'hurts' only beyond the seeds' spread, and say that the lowest of
+    several one-seed points is biased low."""
+    def cell(beta, mean, std, n, name):
+        ms = {"mean": mean, "std": std, "n": n}
+        return {"beta": beta, "ratio": beta, "per_seed": [{}] * n, "paper_name": name,
+                **{m: ms for m in sweep_loss.METRICS}}
+
+    cells = {"0": cell(0.0, 5.0, 0.1, 3, "DINO R"), "10": cell(10.0, 5.4, 0.1, 3, "DINO RD"),
+             "1": cell(1.0, 4.9, 0.0, 1, "b1"), "3": cell(3.0, 5.2, 0.0, 1, "b3")}
+    res = {"base": "dino_rd", "per_beta": cells}
+    text = sweep_loss.finding(res)
+    assert "beta/alpha = 10 5.40 ± 0.10%: the head hurts (gap +0.40 beyond the seeds' spread, 0.14)" in text
+    assert "beta/alpha, 1 (1 seed), 4.90%: a tie with no head" in text and "biased low" in text
+    assert "helps" not in text
+
+
 def test_doubles_at_on_hand_made_numbers():
     lv = [0, 1, 2, 4]
     assert stability.doubles_at(lv, [5, 6, 12, 20]) == pytest.approx(1 + (10 - 6) / (12 - 6))
