@@ -7,7 +7,8 @@ Runs each experiment of experiments.catalog's pipeline in order (the ablation wi
 speed/accuracy chart, stability, downstream, the simulator's benchmark), each into WORK/<name> (default WORK:
 results/reproduce-<preset>); an experiment that reads trained runs reads the ablation's (--ablation
 WORK/ablation), so nothing is trained twice, and every stage is cached: a killed or repeated call continues
-where it stopped. Then each result folder, without its trained runs, is copied to PUBLISH/<name> (default:
+where it stopped; WORK/reproduce.json records each experiment's wall time as it finishes, so a kill loses none
+that finished. Then each result folder, without its trained runs, is copied to PUBLISH/<name> (default:
 docs/results/<preset>; --no-publish leaves docs alone), with reproduce.json (commit, preset, each experiment's
 wall time and the load) and the index page (experiments.status --index).
 """
@@ -110,6 +111,9 @@ def main(argv=None) -> dict:
         fresh = not (work / exp.name).exists()  # else cached stages may be reused: its wall time is not its cost
         record["experiments"][exp.name] = {"argv": line, "wall_s": run_one(exp, line), "fresh": fresh,
                                            "commit": commit, "load_after": list(os.getloadavg())}
+        # recorded as each finishes: a kill or a crash later in a pipeline of hours keeps what it measured
+        done = {**record, "experiments": {exp.name: record["experiments"][exp.name]}}
+        common.write_json(work / "reproduce.json", merged_record(work / "reproduce.json", done))
     record["wall_s"] = round(time.perf_counter() - t0, 1)
     record["load_end"] = list(os.getloadavg())
     common.write_json(work / "reproduce.json", merged_record(work / "reproduce.json", record))

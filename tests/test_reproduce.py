@@ -115,3 +115,25 @@ def test_the_smoke_pipeline_end_to_end(tmp_path, monkeypatch):
     assert len(rows) == len(pipeline)
     if not common.git_commit().endswith("-dirty") and common.git_commit() != "unknown":  # a clean checkout (CI)
         assert [r.state for r in rows] == ["current"] * len(rows), [(r.folder.name, r.why) for r in rows]
+
+
+def test_each_finished_experiment_is_recorded_before_the_next_starts(tmp_path, monkeypatch):
+    """A pipeline killed (here: crashed) in its third experiment keeps the wall times of the first two in
+    WORK/reproduce.json: hours of measured work are not lost with the call."""
+    names = [e.name for e in catalog.pipeline()][:3]
+
+    def fake_run(exp, argv):
+        if exp.name == names[2]:
+            raise KeyboardInterrupt
+        return 12.5
+
+    monkeypatch.setattr(reproduce, "run_one", fake_run)
+    work = tmp_path / "work"
+    try:
+        reproduce.main(["--preset", "smoke", "--only", *names, "--work", str(work), "--no-publish", "--quiet"])
+    except KeyboardInterrupt:
+        pass
+    saved = json.loads((work / "reproduce.json").read_text())
+    assert set(saved["experiments"]) == set(names[:2])
+    assert all(e["wall_s"] == 12.5 and e["fresh"] for e in saved["experiments"].values())
+
