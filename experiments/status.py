@@ -202,11 +202,13 @@ def index(rows, root, record: dict | None = None) -> str:
              "and wall time, and its state when this page was written (`python -m experiments.status` says it for "
              "today's HEAD).", ""]
     if record:
-        total = sum(v["wall_s"] for v in runs.values())
+        # each experiment's cost: its own wall time, or the call that did its work when it reused cached stages
+        total = sum(max(v["wall_s"], (v.get("work") or {}).get("wall_s", 0)) for v in runs.values())
         commits = sorted({r.commit[:12] for r in rows if r.commit})  # what each result recorded it ran
         lines += [f"Made by `python -m experiments.reproduce --preset {record['preset']}` at commit"
                   f"{'s' if len(commits) > 1 else ''} {', '.join(f'`{c}`' for c in commits)}: "
-                  f"{total / 60:.0f} min wall in all (the experiments' times summed), load average "
+                  f"{total / 60:.0f} min wall in all (the experiments' times summed, a cached one's at the call that "
+                  "did its work), load average "
                   f"{record['load_start'][0]:.1f} at the start of the last call and {record['load_end'][0]:.1f} "
                   "at its end.", ""]
     body = []
