@@ -59,7 +59,7 @@ def test_the_smoke_pipeline_end_to_end(tmp_path, monkeypatch):
     assert sweep["checkpoints"][zero["method"]] == zero["run_dirs"]  # so stability can score the sweep's models
     for m in ("unseen_objects", "unseen_sensors", "digit"):
         assert 0 < zero[m]["mean"] < 200, m
-    assert "depth head" in sweep["finding"] and "| seeds |" in (published / "sweep_loss" / "sweep.md").read_text()
+    assert "no head reads" in sweep["finding"] and "| seeds |" in (published / "sweep_loss" / "sweep.md").read_text()
 
     chart = json.loads((published / "pareto" / "results.json").read_text())
     own = {c["label"]: c for c in chart["cells"] if c["size"] in ("vit-s", "resnet")}
