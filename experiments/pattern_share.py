@@ -125,11 +125,16 @@ def _cell(results: dict, share: str, m: str) -> dict:
     return results["per_share"][share]["methods"][m]
 
 
+def _shares(results: dict) -> list[str]:
+    """per_share's keys by share (run with the preset's share first, since it holds the backbones)."""
+    return sorted(results["per_share"], key=lambda k: results["per_share"][k]["share"])
+
+
 def finding(results: dict) -> str:
     """What the shares change, per method: Table II's mean and the shear read off gel 1 against gels 2-3, each
     gap beside the seed spreads it must exceed."""
     lines = []
-    shares = list(results["per_share"])
+    shares = _shares(results)
     for m in results["methods"]:
         cells = [_cell(results, s, m) for s in shares]
         t2 = ", ".join(f"{s}: {common.fmt(c['table2'], 1)}" for s, c in zip(shares, cells))
@@ -146,7 +151,8 @@ def finding(results: dict) -> str:
 def _table(results: dict) -> tuple[list, list, list]:
     header = ["share", "method", "seeds"] + list(METRICS.values())
     rows, csv_rows = [], []
-    for s, cell in results["per_share"].items():
+    for s in _shares(results):
+        cell = results["per_share"][s]
         for m, v in cell["methods"].items():
             rows.append([s, style.name(m), len(v["per_seed"])] + [common.fmt(v[k], 1) for k in METRICS])
             csv_rows.append([cell["share"], m, len(v["per_seed"])] + [x for k in METRICS
@@ -169,42 +175,59 @@ def write_all(results: dict, out: Path) -> None:
 
 
 def plot(results: dict, path: Path) -> Path:
-    """Left: Table II's mean against the share, per method. Right: the shear error per gel against the share
-    (solid gel 1, dashed gels 2 and 3). Dots are seeds; a hollow marker is one seed."""
+    """Left: Table II's mean against the share, per method. Then one panel per method: its shear error on each gel
+    against the share (solid gel 1, the training gel; dashed gel 2; dotted gel 3). Error bars: std over 2 or more
+    seeds, dots its seeds; a hollow marker is one seed. Points at one share are set slightly apart to stay readable."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    shares = [c["share"] for c in results["per_share"].values()]
-    keys = list(results["per_share"])
-    fig, (a0, a1) = plt.subplots(1, 2, figsize=(9.5, 3.8))
-    lines = {1: "-", 2: "--", 3: ":"}
-    for m in results["methods"]:
+    keys = _shares(results)
+    shares = np.array([results["per_share"][k]["share"] for k in keys])
+    methods = results["methods"]
+    step = 0.02 * max(float(np.ptp(shares)), 1.0)  # the sideways offset between points at one share
+    fig, axes = plt.subplots(1, 1 + len(methods), figsize=(4.2 * (1 + len(methods)), 3.9))
+    axes = np.atleast_1d(axes)
+    styles = {1: "-", 2: "--", 3: ":"}
+
+    def draw(ax, m, metric, dx, ls):
         c, mk = style.colour(m), style.marker(m)
-        cells = [_cell(results, s, m) for s in keys]
-        for ax, metric, ls in [(a0, "table2", "-")] + [(a1, f"shear_gel{g}", lines[g]) for g in GELS]:
-            ax.plot(shares, [v[metric]["mean"] for v in cells], ls=ls, color=c, zorder=2)
-            for x, v in zip(shares, cells):  # mean ± std over 2+ seeds (dots: the seeds); hollow: one seed
-                multi = len(v["per_seed"]) >= 2
-                ax.errorbar([x], [v[metric]["mean"]], yerr=[v[metric]["std"]] if multi else None, fmt=mk, color=c,
-                            mfc=c if multi else "white", capsize=3, zorder=3)
-                if multi:
-                    ax.scatter([x] * len(v["per_seed"]), [s[metric] for s in v["per_seed"]], s=9, color="k",
-                               alpha=0.45, zorder=4)
-        a0.plot([], [], mk, color=c, label=style.name(m))
-    a0.plot([], [], "o", color="0.3", label="mean ± std (2+ seeds)")
-    a0.plot([], [], "o", color="0.3", mfc="white", label="1 seed")
-    a0.scatter([], [], s=9, color="k", alpha=0.45, label="each seed")
-    for g in GELS:
-        a1.plot([], [], lines[g], color="0.3", label=f"gel {g}")
-    for ax, title in ((a0, "Table II mean, 9 GelSight units x gels"), (a1, "shear (Fx, Fy) error per gel")):
+        cells = [_cell(results, k, m) for k in keys]
+        x = shares + dx
+        ax.plot(x, [v[metric]["mean"] for v in cells], ls=ls, color=c, zorder=2)
+        for xi, v in zip(x, cells):
+            multi = len(v["per_seed"]) >= 2
+            ax.errorbar([xi], [v[metric]["mean"]], yerr=[v[metric]["std"]] if multi else None, fmt=mk, color=c,
+                        mfc=c if multi else "white", capsize=3, zorder=3)
+            if multi:
+                ax.scatter([xi] * len(v["per_seed"]), [s[metric] for s in v["per_seed"]], s=9, color="k",
+                           alpha=0.45, zorder=4)
+
+    for i, m in enumerate(methods):
+        draw(axes[0], m, "table2", (i - (len(methods) - 1) / 2) * step, "-")
+        axes[0].plot([], [], style.marker(m), color=style.colour(m), label=style.name(m))
+        for g in GELS:
+            draw(axes[1 + i], m, f"shear_gel{g}", (g - 2) * step, styles[g])
+            axes[1 + i].plot([], [], styles[g], color=style.colour(m), label=f"gel {g}" + (" (trained on)" if g == 1
+                                                                                            else ""))
+        axes[1 + i].set_title(f"{style.name(m)}: shear (Fx, Fy) error per gel", fontsize=9)
+    axes[0].plot([], [], "o", color="0.3", label="mean ± std (2+ seeds)")
+    axes[0].plot([], [], "o", color="0.3", mfc="white", label="1 seed")
+    axes[0].scatter([], [], s=9, color="k", alpha=0.45, label="each seed")
+    axes[0].set_title("Table II mean, 9 GelSight units x gels", fontsize=9)
+    shear_axes = axes[1:]
+    lo = min(ax.get_ylim()[0] for ax in shear_axes)
+    hi = max(ax.get_ylim()[1] for ax in shear_axes)
+    for ax in axes:
+        if ax in shear_axes:
+            ax.set_ylim(lo, hi)  # one scale for every method's shear
         ax.set_xticks(shares)
-        ax.set_xlabel("share of the fixed pattern on the gel (moves with it)")
+        ax.set_xlabel("share of the fixed pattern on the gel")
         ax.set_ylabel("normalized L1 error (%)")
-        ax.set_title(title, fontsize=9)
         ax.legend(fontsize=7)
-    fig.suptitle(f"Table II by the moving share of the fixed pattern (preset {results['preset']})", fontsize=10)
+    fig.suptitle(f"Table II by the moving share of the fixed pattern (0: all the camera's, stays; 1: all pigment, "
+                 f"moves with the gel; preset {results['preset']})", fontsize=10)
     seeds = sorted({int(s) for c in results["per_share"].values() for v in c["methods"].values() for s in v["seeds"]})
     common.stamp(fig, results["preset"], seeds, results.get("commit", "?"))
     return tables.save_png(fig, Path(path))

@@ -44,3 +44,18 @@ def test_finding_and_figure(tmp_path):
     for f in ("pattern_share.md", "pattern_share.csv", "pattern_share.png", "results.json"):
         assert (Path(tmp_path) / f).stat().st_size > 0
     assert "| 0.5 | DINO RD | 3 |" in (tmp_path / "pattern_share.md").read_text()
+
+
+def test_shares_read_in_order_whatever_order_they_ran():
+    """The run trains the preset's share first (it holds the backbones); tables, finding and figure go by share."""
+    def cell(gel1):
+        per_seed = [ps.scores(_eval({1: gel1, 2: 7.0, 3: 7.0}))]
+        return {"seeds": [0], "run_dirs": [], "per_seed": per_seed,
+                **{k: ps.common.mean_std([s[k] for s in per_seed]) for k in ps.METRICS}}
+
+    results = {"per_share": {f"{s:g}": {"share": s, "methods": {"dino_rd": cell(6.0 - s)}} for s in (0.5, 0.0, 1.0)},
+               "methods": ["dino_rd"]}
+    assert ps._shares(results) == ["0", "0.5", "1"]
+    assert "by share: 0: +1.0, 0.5: +1.5, 1: +2.0" in ps.finding(results)
+    _, rows, _ = ps._table(results)
+    assert [r[0] for r in rows] == ["0", "0.5", "1"]
