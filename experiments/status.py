@@ -168,10 +168,11 @@ def table(rows, root) -> str:
 
 
 def _seeds(results: dict) -> str:
-    """Seeds per cell: '3', or '1-3' where cells differ (a sweep's or a chart's cells reused from the ablation
-    carry its seeds), or the checkpoints' seeds of an experiment that trains none."""
+    """Seeds per cell: '3', or '1-3' where cells differ (a sweep's, a chart's or a pattern share's cells reused from
+    the ablation carry its seeds), or the checkpoints' seeds of an experiment that trains none."""
     per_cell = [len(v["per_seed"]) for v in results.get("per_beta", {}).values()]
     per_cell += [len(c["seeds"]) for c in results.get("cells", []) if isinstance(c, dict) and "seeds" in c]
+    per_cell += [len(v["per_seed"]) for c in results.get("per_share", {}).values() for v in c["methods"].values()]
     per_cell += [len(runs) for runs in (results.get("checkpoints") or {}).values()
                  if "seeds" not in results and isinstance(runs, list)]
     if per_cell:

@@ -209,3 +209,12 @@ def test_each_diagnostic_is_told_apart_and_stale_only_by_what_it_runs():
     sources = catalog.get("buried_load_check").number_sources
     assert "experiments/diagnostics/plane_strain_fe.py" in sources
     assert "experiments/diagnostics/low_force.py" not in sources
+
+
+def test_seeds_column_spans_the_cells_of_every_kind():
+    one, three = {"per_seed": [{}]}, {"per_seed": [{}, {}, {}]}
+    assert status._seeds({"per_beta": {"0": three, "1": one}}) == "1-3"
+    assert status._seeds({"cells": [{"seeds": [0]}, {"seeds": [0, 1, 2]}]}) == "1-3"
+    assert status._seeds({"seeds": [0], "per_share": {"0": {"methods": {"dino_rd": one}},
+                                                      "0.5": {"methods": {"dino_rd": three}}}}) == "1-3"
+    assert status._seeds({"seeds": [0, 1, 2]}) == "3"
