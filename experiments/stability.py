@@ -242,22 +242,34 @@ def render(cfg: dict, f: Factor, li: int, n: int) -> dict:
 
 
 def doubles_at(levels, errors, ref: int = 0, factor: float = 2.0):
-    """The first level after `ref` where the error reaches factor x its value at `ref`, linearly
-    interpolated between the two levels around the crossing; None if it never does. NaN levels are skipped."""
+    """The level nearest `ref`, on either side (above it on a tie), where the error reaches factor x its value at
+    `ref`, linearly interpolated between the two levels around the crossing; None if it never does. Both sides,
+    since a nominal level in the middle or at the end of the range (a flat face's 14 mm, the big sphere's 40 mm)
+    has departures below it too. NaN levels are skipped."""
     levels, errors = np.asarray(levels, float), np.asarray(errors, float)
     if not np.isfinite(errors[ref]):
         return None
     thr = factor * errors[ref]
-    prev = ref
-    for i in range(ref + 1, len(levels)):
-        if not np.isfinite(errors[i]):
-            continue
-        if errors[i] >= thr:
-            e0, e1 = errors[prev], errors[i]
-            t = 1.0 if e1 == e0 else float(np.clip((thr - e0) / (e1 - e0), 0, 1))
-            return float(levels[prev] + t * (levels[i] - levels[prev]))
-        prev = i
-    return None
+    found = []  # (distance from ref in levels, the crossing)
+    for side in (range(ref + 1, len(levels)), range(ref - 1, -1, -1)):
+        prev = ref
+        for i in side:
+            if not np.isfinite(errors[i]):
+                continue
+            if errors[i] >= thr:
+                e0, e1 = errors[prev], errors[i]
+                t = 1.0 if e1 == e0 else float(np.clip((thr - e0) / (e1 - e0), 0, 1))
+                found.append((abs(i - ref), float(levels[prev] + t * (levels[i] - levels[prev]))))
+                break
+            prev = i
+    return min(found, key=lambda f: f[0])[1] if found else None
+
+
+def strongest(entry: dict) -> int:
+    """The index of a factor's strongest level: its last, or its first where the nominal level is the last (the
+    big sphere's 40 mm radius, the flattest curved body in training)."""
+    n = len(entry["levels"])
+    return 0 if entry["ref"] == n - 1 and n > 1 else n - 1
 
 
 def score_run(run_dir, sets: dict) -> dict:
@@ -379,7 +391,7 @@ def run(cfg, methods, chosen, per_level, ablation_dir, out, data_dir=None, force
                 "nl1": mean, "std": [c["std"] for c in cells], "per_seed": per_seed,
                 "mae_n": _seed_mean(scored[m], f.name, "mae_n"), "bias_n": _seed_mean(scored[m], f.name, "bias_n"),
                 "doubles_at": doubles_at(f.levels, mean, f.ref),
-                "ratio_at_max": float(np.nanmax(mean[f.ref + 1:]) / mean[f.ref]) if f.ref + 1 < len(mean) else None,
+                "ratio_at_max": float(np.nanmax(np.delete(mean, f.ref)) / mean[f.ref]) if len(mean) > 1 else None,
             }
         fres[f.name] = entry
     timings["total_s"] = round(time.perf_counter() - t0, 1)
@@ -404,10 +416,11 @@ def _seed_mean(runs: list, fn: str, key: str) -> list:
 
 
 def breaks_first(entry: dict) -> str | None:
-    """The method whose error doubles at the lowest level; if none doubles, the largest rise at the
-    strongest level (None if there is nothing to compare)."""
+    """The method whose error doubles at the level nearest the nominal one (on either side); if none doubles, the
+    largest rise at any level off the nominal one (None if there is nothing to compare)."""
     ms = entry["methods"]
-    doubled = {m: v["doubles_at"] for m, v in ms.items() if v["doubles_at"] is not None}
+    nominal = entry["levels"][entry["ref"]]
+    doubled = {m: abs(v["doubles_at"] - nominal) for m, v in ms.items() if v["doubles_at"] is not None}
     if doubled:
         return min(doubled, key=doubled.get)
     rises = {m: v["ratio_at_max"] for m, v in ms.items()
@@ -482,14 +495,14 @@ def summary(results: dict) -> str:
         ref = e["levels"][e["ref"]]
         parts = []
         for m, v in e["methods"].items():
-            top = f"{v['nl1'][-1]:.1f}% at {e['levels'][-1]:g}"
+            top = f"{v['nl1'][strongest(e)]:.1f}% at {e['levels'][strongest(e)]:g}"
             dbl = f"doubles at {v['doubles_at']:.3g}" if v["doubles_at"] is not None else "does not double"
             parts.append(f"{_name(m)} {v['nl1'][e['ref']]:.1f}% -> {top} ({dbl})")
         first = results["breaks_first"].get(fn)
         line = f"- **{fn}** ({e['label']}; nominal {ref:g}): " + "; ".join(parts) + "."
         if first and len(e["methods"]) > 1:
             line += f" Breaks first: **{_name(first)}** ({_traits(first, results)})."
-            best = lowest_at(e, len(e["levels"]) - 1)
+            best = lowest_at(e, strongest(e))
             if best:
                 line += (f" Lowest error at the strongest level: {_name(best)} (\"breaks first\" is relative to each "
                          f"method's own nominal error, so a method that starts low can break first and still be best)."
@@ -517,7 +530,7 @@ def summary(results: dict) -> str:
                      f"factors ({', '.join(f'{_name(m)} {c}' for m, c in counts.items())}). "
                      f"One seed's curves move by about the seeds' spread below; a difference in 'doubles at' "
                      f"between adjacent levels is not a resolved ranking.")
-        bests = [lowest_at(e, len(e["levels"]) - 1) for e in results["factors"].values()]
+        bests = [lowest_at(e, strongest(e)) for e in results["factors"].values()]
         bests = [m for m in bests if m]
         if bests:
             bc = {m: bests.count(m) for m in dict.fromkeys(bests)}

@@ -45,9 +45,17 @@ def test_doubles_at_on_hand_made_numbers():
     assert stability.doubles_at(lv, [5, 6, 7, 9.9]) is None
     assert stability.doubles_at(lv, [8, 2, 10, 16], ref=1) == pytest.approx(1 + (4 - 2) / (10 - 2))
     assert stability.doubles_at(lv, [5, math.nan, 6, 15]) == pytest.approx(2 + 4 / 9 * 2)  # NaN level skipped
-    entry = {"methods": {"a": {"doubles_at": 3.0, "ratio_at_max": 2.5}, "b": {"doubles_at": 1.5, "ratio_at_max": 4},
+    # a nominal level at the end: the departures lie below it (the big sphere's 40 mm against smaller spheres)
+    assert stability.doubles_at(lv, [4.1, 5.3, 3.0, 2.1], ref=3) == pytest.approx(2 - (4.2 - 3.0) / (5.3 - 3.0))
+    assert stability.doubles_at(lv, [9, 3, 4, 12], ref=2) == 3  # the nearer side's crossing (3 vs 0)
+    assert stability.strongest({"levels": [4, 10, 40], "ref": 2}) == 0
+    assert stability.strongest({"levels": [0, 1, 2], "ref": 1}) == 2
+    entry = {"levels": [0, 1, 2, 4], "ref": 0,
+             "methods": {"a": {"doubles_at": 3.0, "ratio_at_max": 2.5}, "b": {"doubles_at": 1.5, "ratio_at_max": 4},
                          "c": {"doubles_at": None, "ratio_at_max": 1.2}}}
     assert stability.breaks_first(entry) == "b"
+    entry["ref"] = 3  # below the nominal level the first to break is the one that doubles nearest it
+    assert stability.breaks_first(entry) == "a"
 
 
 def test_pick_levels_keeps_nominal_and_strongest():
