@@ -331,8 +331,8 @@ def seed_spread(evals: dict) -> dict:
 
 def main(argv=None) -> dict:
     ap = common.base_parser(__doc__.strip().splitlines()[0],
-                            costs={"quick": "4 min reusing an ablation's runs "
-                                             "(--ablation; measured on the earlier 372-step preset)"})
+                            costs={"quick": "43 min reusing an ablation's 15 runs "
+                                             "(--ablation; measured at ef0dbc5 on 2 cores beside other work)"})
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
                     help="registry names (default: the ablation's methods, else the paper set)")
     ap.add_argument("--ablation", default=None, help="ablation results folder (default: results/ablation-<preset>)")
