@@ -464,9 +464,11 @@ MECHANISM = {
     "face_texture": "a body in stick holds the gel across its whole face whether it touches through knurl crests or "
                     "everywhere, so the shear stiffness is the face's; a model that learned the load per unit of "
                     "touching area from one texture misreads another",
-    "sphere_radius": "at a given load a flatter body makes a wider, shallower contact, and in a bonded layer the "
-                     "stiffness grows steeply with the contact's width against the thickness, so spheres flatter "
-                     "than the training bodies press contacts and depth-load relations no training press had",
+    "sphere_radius": "the training set's spheres are 4 and 40 mm; at a given load a sphere between them makes a "
+                     "contact whose width and depth lie between theirs, and in a bonded layer the stiffness grows "
+                     "steeply with the contact's width against the thickness, so its depth-to-load relation is one no "
+                     "training press showed: if the models do not interpolate across curvature, the error peaks "
+                     "between the two training radii and falls toward both",
     "elongation": "a longer contact spreads the same load along a line: the pressure per unit length and the "
                   "imprint's depth fall with length, so a depth-to-load relation learned on round and short "
                   "contacts no longer holds, and a bar longer than the pad carries part of its load outside "
