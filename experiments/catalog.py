@@ -27,7 +27,9 @@ class Experiment:
     numbers: the sources (files or folders) its numbers depend on beyond the code its module imports (a change
     there makes it stale); figures: the sources of its tables' text and plots (a change there needs only
     `experiments.replot`);
-    matches: whether a results.json is this experiment's; replot: re-renders a folder from its results.json."""
+    matches: whether a results.json is this experiment's; replot: re-renders a folder from its results.json;
+    cell_seeds: the number of seeds of each of its cells, from its results.json, where cells differ (a sweep's
+    cells reused from the ablation carry its seeds; None: the result's own seeds)."""
 
     name: str
     module: str
@@ -40,6 +42,7 @@ class Experiment:
     figures: tuple = ()
     in_pipeline: bool = True
     takes_common_flags: bool = True  # --quiet and --data, as experiments.common's parser gives them
+    cell_seeds: Callable[[dict], list] | None = None
 
     def main(self) -> Callable:
         """Its command's main(argv): the module's own, or its package's suite's (experiments.bench)."""
@@ -172,15 +175,19 @@ EXPERIMENTS = (
     Experiment("sweep_loss", "experiments.sweep_loss",
                "Does the depth head help? DINO's error against the depth-loss weight beta/alpha",
                _has("per_beta"), _replot_sweep, args=_trains_seeds,
-               reuses="ablation", figures=("experiments/tables.py", "experiments/style.py")),
+               reuses="ablation", figures=("experiments/tables.py", "experiments/style.py"),
+               cell_seeds=lambda r: [len(v["per_seed"]) for v in r["per_beta"].values()]),
     Experiment("pattern_share", "experiments.pattern_share",
                "Table II when none, half or all of the sensor's fine fixed pattern is the gel's pigment (a share no "
                "frame at rest can measure)", _has("per_share", "nominal_share"), _replot_pattern,
-               args=_pattern_args, reuses="ablation", figures=("experiments/style.py",)),
+               args=_pattern_args, reuses="ablation", figures=("experiments/style.py",),
+               cell_seeds=lambda r: [len(v["per_seed"]) for c in r["per_share"].values()
+                                     for v in c["methods"].values()]),
     Experiment("pareto", "experiments.pareto",
                "Speed against accuracy: error against latency, training throughput and size, per method and size",
                _has("cells", "fronts"), _replot_pareto, args=_trains_seeds, reuses="ablation",
-               figures=("experiments/style.py",)),
+               figures=("experiments/style.py",),
+               cell_seeds=lambda r: [len(c["seeds"]) for c in r["cells"] if isinstance(c, dict) and "seeds" in c]),
     Experiment("stability", "experiments.stability",
                "Where each method fails: the seed spread and the error against noise, lighting, force, shear, "
                "drift and more", _has("factors", "seed_spread"), _replot_stability, args=_reads_ablation,

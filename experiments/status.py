@@ -167,12 +167,10 @@ def table(rows, root) -> str:
          for r in rows])
 
 
-def _seeds(results: dict) -> str:
-    """Seeds per cell: '3', or '1-3' where cells differ (a sweep's, a chart's or a pattern share's cells reused from
-    the ablation carry its seeds), or the checkpoints' seeds of an experiment that trains none."""
-    per_cell = [len(v["per_seed"]) for v in results.get("per_beta", {}).values()]
-    per_cell += [len(c["seeds"]) for c in results.get("cells", []) if isinstance(c, dict) and "seeds" in c]
-    per_cell += [len(v["per_seed"]) for c in results.get("per_share", {}).values() for v in c["methods"].values()]
+def _seeds(results: dict, experiment=None) -> str:
+    """Seeds per cell: '3', or '1-3' where cells differ (the experiment's `cell_seeds`), or the checkpoints' seeds
+    of an experiment that trains none."""
+    per_cell = list(experiment.cell_seeds(results)) if experiment and experiment.cell_seeds else []
     per_cell += [len(runs) for runs in (results.get("checkpoints") or {}).values()
                  if "seeds" not in results and isinstance(runs, list)]
     if per_cell:
@@ -228,7 +226,7 @@ def index(rows, root, record: dict | None = None) -> str:
             cmd, wall = (f"python -m {e.module}" if e else "-"), _wall(r.results)
         commit = f"`{r.commit[:7]}`" + (" (uncommitted changes)" if r.commit.endswith("-dirty") else "")
         body.append([f"[{rel}]({rel}/)", e.question if e else "-", f"`{cmd}`", commit if r.commit else "-",
-                     _seeds(r.results), wall, r.state + (f": {_why(r)}" if r.state != "current" else "")])
+                     _seeds(r.results, e), wall, r.state + (f": {_why(r)}" if r.state != "current" else "")])
     lines.append(common.md_table(["result", "answers", "command", "commit", "seeds", "wall", "state"], body))
     return "\n".join(lines) + "\n"
 

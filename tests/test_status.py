@@ -213,8 +213,10 @@ def test_each_diagnostic_is_told_apart_and_stale_only_by_what_it_runs():
 
 def test_seeds_column_spans_the_cells_of_every_kind():
     one, three = {"per_seed": [{}]}, {"per_seed": [{}, {}, {}]}
-    assert status._seeds({"per_beta": {"0": three, "1": one}}) == "1-3"
-    assert status._seeds({"cells": [{"seeds": [0]}, {"seeds": [0, 1, 2]}]}) == "1-3"
+    exp = {e.name: e for e in catalog.EXPERIMENTS}
+    assert status._seeds({"per_beta": {"0": three, "1": one}}, exp["sweep_loss"]) == "1-3"
+    assert status._seeds({"cells": [{"seeds": [0]}, {"seeds": [0, 1, 2]}]}, exp["pareto"]) == "1-3"
     assert status._seeds({"seeds": [0], "per_share": {"0": {"methods": {"dino_rd": one}},
-                                                      "0.5": {"methods": {"dino_rd": three}}}}) == "1-3"
+                                                      "0.5": {"methods": {"dino_rd": three}}}},
+                         exp["pattern_share"]) == "1-3"
     assert status._seeds({"seeds": [0, 1, 2]}) == "3"
