@@ -29,7 +29,9 @@ class Experiment:
     `experiments.replot`);
     matches: whether a results.json is this experiment's; replot: re-renders a folder from its results.json;
     cell_seeds: the number of seeds of each of its cells, from its results.json, where cells differ (a sweep's
-    cells reused from the ablation carry its seeds; None: the result's own seeds)."""
+    cells reused from the ablation carry its seeds; None: the result's own seeds); speed: its numbers are the
+    speed of the code it runs, so a change certified to give the same outputs (experiments.same_output) still
+    changes them."""
 
     name: str
     module: str
@@ -43,6 +45,7 @@ class Experiment:
     in_pipeline: bool = True
     takes_common_flags: bool = True  # --quiet and --data, as experiments.common's parser gives them
     cell_seeds: Callable[[dict], list] | None = None
+    speed: bool = False
 
     def main(self) -> Callable:
         """Its command's main(argv): the module's own, or its package's suite's (experiments.bench)."""
@@ -199,11 +202,11 @@ EXPERIMENTS = (
     Experiment("bench-sim", "experiments.bench",
                "The simulator's speed: batched solves against the numpy reference, their agreement, a dataset's time",
                lambda r: r.get("experiment") == "bench" and "sim_speed" in r, _replot_bench,
-               args=_bench("sim"), numbers=("experiments/bench",), takes_common_flags=False),
+               args=_bench("sim"), numbers=("experiments/bench",), takes_common_flags=False, speed=True),
     Experiment("bench", "experiments.bench",
                "ffjax against PyTorch: train and inference speed, scaling, the loop against its step",
                lambda r: r.get("experiment") == "bench", _replot_bench, args=_bench(None),
-               numbers=("experiments/bench",), takes_common_flags=False),
+               numbers=("experiments/bench",), takes_common_flags=False, speed=True),
     Experiment("contact_probe", "experiments.diagnostics.contact_probe",
                "Where a contact's edge is read: the layer's contact against the rendered frame",
                _has("edge_mm", "per_shape"), _replot_probe("contact_probe"),

@@ -5,7 +5,8 @@
 A result records the commit it ran (results.json "commit"); its experiment (experiments.catalog) names the
 sources its numbers and its figures come from. At HEAD a result is
 - current: none of those sources changed since its commit (a change of docstrings, comments or layout is none,
-  nor is a file moved elsewhere), and its figures' sources not since it was last drawn;
+  nor is a file moved elsewhere, nor a change of the simulator that `experiments.same_output` certified renders
+  the same bytes, except for the benchmarks that time it), and its figures' sources not since it was last drawn;
 - replot: only the sources of its tables' text and figures changed since it was drawn
   (`python -m experiments.replot FOLDER` redraws it and records the commit it drew with);
 - stale: a source of its numbers changed (the files are listed), it ran on uncommitted code ("-dirty"), its
@@ -65,10 +66,10 @@ def _code(text: str | None, path: str):
     return ast.dump(tree)
 
 
-def _same_code(commit: str, old: str, new: str, root=None) -> bool:
-    """Whether `old` at commit and `new` at HEAD hold the same code (text, or a Python file's docstring-free
+def _same_code(commit: str, old: str, new: str, root=None, head: str = "HEAD") -> bool:
+    """Whether `old` at commit and `new` at `head` hold the same code (text, or a Python file's docstring-free
     syntax tree)."""
-    a, b = (_git("show", f"{rev}:{p}", root=root) for rev, p in ((commit, old), ("HEAD", new)))
+    a, b = (_git("show", f"{rev}:{p}", root=root) for rev, p in ((commit, old), (head, new)))
     if a.returncode or b.returncode:
         return False
     if a.stdout == b.stdout:
@@ -77,11 +78,25 @@ def _same_code(commit: str, old: str, new: str, root=None) -> bool:
     return before is not None and before == _code(b.stdout, new)
 
 
-def changed_since(commit: str, paths, root=None) -> list[str] | None:
+def certified(commit: str, root=None) -> set[str]:
+    """The simulator's files whose change since `commit` a certificate vouches for (`experiments.same_output`: the
+    code of its base and of its head rendered the same bytes): those of every certificate whose base holds the
+    code `commit` holds in its files, and whose head holds the code HEAD holds."""
+    from experiments import same_output
+
+    out: set[str] = set()
+    for c in same_output.certificates(root):
+        if all(_same_code(commit, f, f, root, head=c["base"]) and _same_code(c["head"], f, f, root)
+               for f in c["files"]):
+            out.update(c["files"])
+    return out
+
+
+def changed_since(commit: str, paths, root=None, certificates: bool = False) -> list[str] | None:
     """Files under `paths` whose code differs between `commit` and HEAD (committed changes only), or None when
     the commit is not in this repository's history. A change of docstrings, comments or layout only is no change
     of numbers; a file moved out of `paths` (git's rename detection) is not one either: what used it changed
-    too, and is named."""
+    too, and is named. certificates: nor is a change of the simulator certified to render the same bytes."""
     if _git("cat-file", "-e", f"{commit}^{{commit}}", root=root).returncode != 0:
         return None
     r = _git("diff", "--name-status", "-M", commit, "HEAD", root=root)
@@ -96,6 +111,9 @@ def changed_since(commit: str, paths, root=None) -> list[str] | None:
         if kind[0] in "MR" and _same_code(commit, old, new, root):
             continue
         out.append(new)
+    if out and certificates:
+        vouched = certified(commit, root)
+        out = [f for f in out if f not in vouched]
     return out
 
 
@@ -119,7 +137,7 @@ def check(folder) -> Result:
     if commit.endswith("-dirty"):
         r.state, r.why = "stale", [f"ran on uncommitted changes to {commit[:7]}"]
         return r
-    numbers = changed_since(commit, r.experiment.number_sources)
+    numbers = changed_since(commit, r.experiment.number_sources, certificates=not r.experiment.speed)
     if numbers is None:
         r.state, r.why = "stale", [f"commit {commit[:7]} is not in this history"]
     elif numbers:

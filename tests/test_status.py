@@ -72,7 +72,7 @@ def test_a_changed_source_makes_a_result_stale_and_its_readers_too(tmp_path, mon
     stale ablation's runs is stale as well."""
     changes = {("ffjax",): ["ffjax/sim/optics.py", "ffjax/sim/press.py", "ffjax/models/vit.py"]}
 
-    def changed(commit, paths):
+    def changed(commit, paths, certificates=False):
         if "ffjax/sim/press.py" in paths and "experiments/sweep_loss.py" not in paths and "abl" in commit:
             return changes[("ffjax",)]
         if "experiments/tables.py" in paths and "sw" in commit:
@@ -171,11 +171,38 @@ def test_docstrings_comments_and_moves_out_are_no_change_of_numbers(tmp_path):
     assert status.changed_since("0" * 40, ["lib"], root=repo) is None
 
 
+def test_a_certified_change_of_the_simulator_is_no_change_of_numbers(tmp_path):
+    """A certificate (experiments.same_output: base and head rendered the same bytes) clears its files for results
+    that ran the base's code, while HEAD holds the head's; a later change, or a result of other code, is not
+    cleared."""
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    subprocess.run(["git", "init", "-q"], cwd=repo, check=True)
+    first = _commit(repo, {"ffjax/sim/a.py": "x = 1\n", "lib/b.py": "y = 1\n"}, "first")
+    second = _commit(repo, {"ffjax/sim/a.py": "x = 1  # faster\nz = 2\n", "lib/b.py": "y = 2\n"}, "speed-up")
+    paths = ["ffjax", "lib"]
+    assert sorted(status.changed_since(first, paths, root=repo, certificates=True)) == ["ffjax/sim/a.py",
+                                                                                         "lib/b.py"]
+    record = {"certified": [{"base": first, "head": second, "files": ["ffjax/sim/a.py"]}]}
+    _commit(repo, {"experiments/same_output.json": json.dumps(record)}, "certify")
+    assert status.changed_since(first, paths, root=repo, certificates=True) == ["lib/b.py"]
+    assert sorted(status.changed_since(first, paths, root=repo)) == ["ffjax/sim/a.py", "lib/b.py"]  # a benchmark
+    assert status.changed_since(second, paths, root=repo, certificates=True) == []
+    _commit(repo, {"ffjax/sim/a.py": "x = 3\n"}, "new physics")
+    assert sorted(status.changed_since(first, paths, root=repo, certificates=True)) == ["ffjax/sim/a.py",
+                                                                                         "lib/b.py"]
+
+
+def test_the_benchmarks_alone_time_the_simulator():
+    """Only the results whose numbers are speeds ignore certificates."""
+    assert {e.name for e in catalog.EXPERIMENTS if e.speed} == {"bench", "bench-sim"}
+
+
 def test_a_replotted_result_is_current_until_its_figures_change_again(tmp_path, monkeypatch):
     """experiments.replot records the commit it drew with; status compares the figures' sources from there."""
     asked = []
 
-    def changed(commit, paths):
+    def changed(commit, paths, certificates=False):
         asked.append(commit)
         return ["experiments/tables.py"] if "experiments/tables.py" in paths and commit == "old" else []
 
