@@ -17,13 +17,16 @@ it has converged (a convergence mask), its FFTs batched with the others'. float3
 Batches are padded to one of BATCHES (copies of the first press, dropped after), so a sensor and grid compile
 at most len(BATCHES) programs per solve; larger batches are cut into pieces of max_batch() presses: 32 on a
 GPU, 8 on a CPU, where a batch runs until its slowest press converges and batching gains nothing (measured by
-`python -m experiments.bench --only sim`: batch 32 at 0.7-0.8x the rate of batch 8).
+`python -m experiments.bench --only sim`: batch 32 at 0.7-0.8x the rate of batch 8). On a CPU the pieces run
+threads() at a time, one per core: XLA runs one CPU program's FFTs on one core, and each piece is the same
+program on the same presses whichever thread runs it, so the results do not depend on the threads.
 """
 
 from __future__ import annotations
 
 import functools
 import os
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import jax
@@ -35,6 +38,7 @@ from ffjax.sim.elastic_layer import FAR, Layer
 
 BATCHES = (1, 8, 32)
 MAX_BATCH: int | None = None  # None: max_batch() chooses by device; the benchmark sets it to time each size
+THREADS: int | None = None  # None: threads() chooses; a dataset worker process sets 1 (one process per core)
 RESTART = 1e-3  # x thickness: an approach that moves more than this in one iteration restarts the CG directions
 RUNAWAY = 200  # iterations after which a press beyond the refused approach stops
 _TINY = 1e-30  # guards divisions that are 0 / 0 only for a press already frozen
@@ -48,6 +52,27 @@ def on_accelerator() -> bool:
 def max_batch() -> int:
     """The most presses one call of a solve takes: MAX_BATCH when set, else 32 on an accelerator, 8 on a CPU."""
     return MAX_BATCH or (BATCHES[-1] if on_accelerator() else 8)
+
+
+def threads() -> int:
+    """Pieces of a batch solved at once: THREADS when set, else one per CPU core this process may use on a CPU, 1 on
+    an accelerator (which runs a whole piece in parallel already)."""
+    if THREADS:
+        return THREADS
+    if on_accelerator():
+        return 1
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def _solve_pieces(call, n: int) -> list:
+    """[device_get(call(a, b, m)) for each piece (a, b, m) of n presses], threads() pieces at a time."""
+    pieces = list(_pieces(n))
+    solve = lambda piece: jax.device_get(call(*piece))  # noqa: E731
+    k = min(threads(), len(pieces))
+    if k <= 1:
+        return [solve(piece) for piece in pieces]
+    with ThreadPoolExecutor(k) as pool:
+        return list(pool.map(solve, pieces))
 
 
 def use_disk_cache() -> Path | None:
@@ -199,8 +224,7 @@ def normal(hb: np.ndarray, fz: np.ndarray, layer: Layer, thickness: float, eps: 
     run = _normal_program(float(layer.dx) ** 2, float(thickness), float(tol), float(outer_tol), int(max_iter),
                           float(refuse_above), eps is not None)
     table = tuple(jnp.asarray(np.zeros(2) if t is None else t, jnp.float32) for t in (eps, psi))
-    parts = [jax.device_get(run(_padded(hb[a:b], m), _padded(fz[a:b], m), kernel, *table))
-             for a, b, m in _pieces(len(hb))]
+    parts = _solve_pieces(lambda a, b, m: run(_padded(hb[a:b], m), _padded(fz[a:b], m), kernel, *table), len(hb))
     names = ("delta", "u", "p", "iterations")
     return {k: np.concatenate([np.asarray(part[i])[: b - a] for part, (a, b, _) in zip(parts, _pieces(len(hb)))])
             for i, k in enumerate(names)}
@@ -273,10 +297,14 @@ def stick(held: np.ndarray, force: np.ndarray, layer: Layer, depths=None, tol: f
     held, force = np.asarray(held, bool), np.asarray(force, np.float32)
     depths = np.zeros(len(held)) if depths is None else np.asarray(depths, np.float64)
     run = _stick_program(float(layer.dx) ** 2, float(tol), int(max_iter))
-    parts = []
-    for a, b, m in _pieces(len(held)):
+    for d in np.unique(depths):  # each depth's kernels built once, before the threads read them
+        layer.coupled(float(d))
+
+    def piece(a, b, m):
         kernels = [layer.coupled(float(d)) for d in _padded(depths[a:b], m)]
         hold, surface = (np.stack([np.stack(k[j]) for k in kernels]) for j in (0, 1))  # (m, 8, H, W // 2 + 1)
-        parts.append(jax.device_get(run(_padded(held[a:b], m), _padded(force[a:b], m), hold, surface)))
+        return run(_padded(held[a:b], m), _padded(force[a:b], m), hold, surface)
+
+    parts = _solve_pieces(piece, len(held))
     return {k: np.concatenate([np.asarray(part[i])[: b - a] for part, (a, b, _) in zip(parts, _pieces(len(held)))])
             for i, k in enumerate(("fields", "s", "iterations"))}

@@ -300,9 +300,11 @@ def _stray(folder: Path, count: int) -> list[Path]:
     return sorted(p for p in folder.glob("shard_*.npz") if p.name not in want)
 
 
-def _ignore_sigint() -> None:
-    """A worker leaves Ctrl-C to the parent, which stops them all with one line (not one traceback each)."""
+def _start_worker(threads: int) -> None:
+    """A worker leaves Ctrl-C to the parent, which stops them all with one line (not one traceback each), and
+    solves `threads` pieces of a batch at once (the cores left to each worker)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    batched.THREADS = threads
 
 
 def _shard_task(args) -> int:
@@ -415,7 +417,8 @@ def _generate(cfg: dict, out: Path, force: bool, workers: int | None, progress: 
                 bar.update(_shard_task(t))
         else:
             ctx = multiprocessing.get_context("spawn")  # safe even if the caller already started jax threads
-            pool = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_ignore_sigint)
+            pool = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_start_worker,
+                                          initargs=(max(1, batched.threads() // workers),))
             try:
                 for n in (f.result() for f in cf.as_completed([pool.submit(_shard_task, t) for t in tasks])):
                     bar.update(n)
