@@ -20,7 +20,7 @@ TINY_SIM = {"sizes": {"24x32": (24, 32)}, "batches": (1, 4), "n": 4, "reference_
             "dataset": None}
 # what the smoke pipeline's `experiments.bench --smoke` runs: TINY with a small scaling sweep (the pipeline skips
 # no section) and the simulator's part
-PIPELINE = {**TINY, "name": "smoke", "scaling": {"base": "smoke", "batch": (4,), "size": (16,), "model": ((16, 1),)},
+PIPELINE = {**TINY, "name": "smoke", "scaling": {"base": "smoke", "batch": (4,), "size": (16,), "model": ((16, 1, 2),)},
             "sim_speed": TINY_SIM}
 
 
@@ -87,7 +87,8 @@ def check_sim(out, res: dict) -> None:
     batch's peak memory; all in the report."""
     r = res["sim_speed"]["rates"]["24x32"]
     assert r["reference_s"] > 0 and {int(b) for b in r["batched_s"]} == {1, 4}  # JSON keys: strings
-    assert all(v > 0 for v in r["speedup"].values())
+    assert all(v > 0 for v in r["speedup"].values()) and r["loading"] == "oblique"
+    assert r["threads"] == 1 or {int(b) for b in r["threaded_s"]} == {1, 4}  # one per core on a CPU
     ag = res["sim_speed"]["agreement"]
     assert set(ag) == {"mini-1-gel1", "digit"}
     for v in ag.values():  # the same physics on both paths (the bench's own measure, loose: a tiny grid)

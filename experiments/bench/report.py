@@ -285,17 +285,25 @@ def sim_tables(ss: dict | None) -> str:
         return ""
     rates = ss["rates"]
     batches = sorted({int(b) for v in rates.values() for b in v["batched_s"]})
+    threads = max((int(v.get("threads", 1)) for v in rates.values() if v.get("threaded_s")), default=1)
+
     def best(v):
         b, x = max(v["speedup"].items(), key=lambda kv: kv[1])
-        return f"{_f(x, 2)} (batch {b})"
+        on = v.get("threaded_s", {}).get(b, 0.0) > v["batched_s"][b]
+        return f"{_f(x, 2)} (batch {b}{f', {threads} threads' if on else ''})"
 
-    rows = [[k, _f(v["reference_s"]), *(_f(v["batched_s"][b]) for b in batches), best(v)] for k, v in rates.items()]
+    cols = [f"batched, batch {b}" for b in batches] + [f"batch {b}, {threads} threads" for b in batches] * (threads > 1)
+    rows = [[k, _f(v["reference_s"]), *(_f(v["batched_s"][b]) for b in batches),
+             *((_f(v["threaded_s"][b]) for b in batches) if threads > 1 else ()), best(v)] for k, v in rates.items()]
+    first = next(iter(rates.values()))
+    how = (f"pressed as the dataset presses ({first['loading']}, {first['steps']} steps: {first['steps'] + 1} normal "
+           f"and {first['steps']} stick solves per press)" if first.get("loading") else "pressed, then pushed")
     out = ["\n## The simulator: batched layer solves against the numpy reference\n",
-           "Presses per second in one process over mixed indenters with the dataset's ranges of force and pose (the "
-           "reference presses one at a time: its rate does not depend on a batch), measured in this run; compiling "
-           "is not counted.\n",
-           md_table(["render size", "reference presses/s", *(f"batched, batch {b}" for b in batches),
-                     "best speedup"], rows)]
+           f"Presses per second in one process over mixed indenters with the dataset's ranges of force and pose, "
+           f"{how}; the reference presses one at a time on one core (its rate does not depend on a batch); "
+           "'threads': a call's pieces solved that many at once, one per core (`ffjax.sim.batched.threads`). "
+           "Measured in this run; compiling is not counted.\n",
+           md_table(["render size", "reference presses/s", *cols, "best speedup"], rows)]
     if ss.get("default_batch"):
         out.append(f"\nThe simulator presses in batches of up to {ss['default_batch']} on this device "
                    "(`ffjax.sim.batched.max_batch`).\n")
@@ -354,7 +362,7 @@ def plots(res: dict, out: Path) -> list[str]:
     import matplotlib.pyplot as plt
 
     files = []
-    labels = {"batch": "batch size", "size": "image size (px)", "model": "ViT dim/depth"}
+    labels = {"batch": "batch size", "size": "image size (px)", "model": "ViT dim/depth/heads"}
     for axis, pts in sc.items():
         if not pts:
             continue

@@ -1,7 +1,9 @@
 """The simulator's side of `experiments.bench --only sim`: presses per second of the batched layer solves
 (ffjax.sim.batched, what the simulator runs) against the numpy reference (the path before them, kept for this
-and for the agreement checks), in one run, per render size and batch size; their agreement on every indenter,
-unseen object and sensor; the peak memory of one batch; and a preset's whole dataset, end to end."""
+and for the agreement checks), in one run, per render size, batch size and number of threads, pressed as the
+dataset presses (the oblique press in data.path_steps increments: path_steps + 1 normal and path_steps stick
+solves each); their agreement on every indenter, unseen object and sensor; the peak memory of one batch; and a
+preset's whole dataset, end to end."""
 
 from __future__ import annotations
 
@@ -18,6 +20,9 @@ import configs
 from ffjax import sim
 from ffjax.sim import batched, dataset, mechanics
 
+_DATA = configs.get("quick")["data"]  # pressed as the datasets press (oblique: the request is Fz, the tilt pushes)
+LOADING, STEPS = _DATA["loading"], int(_DATA["path_steps"])
+
 
 def presses(n: int, seed: int = 0, shapes=None) -> dict:
     """n presses over `shapes` (default: the indenters, in turn) with the dataset's ranges of force and pose."""
@@ -25,9 +30,8 @@ def presses(n: int, seed: int = 0, shapes=None) -> dict:
     shapes = list(shapes or sim.INDENTERS)
     fz = rng.uniform(0.05, 15.0, n)
     tilt = rng.uniform(-7.0, 7.0, (n, 2))
-    shear = fz[:, None] * np.tan(np.radians(tilt)) + rng.normal(0, 0.06, (n, 2)) * fz[:, None]
     return {"shape": [shapes[i % len(shapes)] for i in range(n)],
-            "forces": np.column_stack([np.clip(shear, -2, 2), fz]),
+            "forces": np.column_stack([np.zeros((n, 2)), fz]),
             "x_mm": rng.uniform(-2.0, 2.0, n), "y_mm": rng.uniform(-1.5, 1.5, n), "yaw_deg": rng.uniform(-180, 180, n),
             "tilt_deg": tilt, "seeds": np.arange(n)}
 
@@ -35,32 +39,39 @@ def presses(n: int, seed: int = 0, shapes=None) -> dict:
 def _press(p: dict, sensor: str, size, lo: int, hi: int, reference: bool = False) -> dict:
     return sim.press_batch(p["shape"][lo:hi], sensor, p["forces"][lo:hi], p["x_mm"][lo:hi], p["y_mm"][lo:hi],
                            p["yaw_deg"][lo:hi], p["tilt_deg"][lo:hi], p["seeds"][lo:hi], tuple(size),
-                           reference=reference)
+                           reference=reference, path=LOADING, steps=STEPS)
 
 
-def _rate(p: dict, sensor: str, size, n: int, batch: int, reference: bool = False) -> float:
-    """Presses per second over the first n presses, pressed `batch` at a time (after one warm-up batch, so
-    compiling is not counted)."""
-    before, batched.MAX_BATCH = batched.MAX_BATCH, batch  # each call one solve of this size, on any device
+def _rate(p: dict, sensor: str, size, n: int, batch: int, threads: int = 1, reference: bool = False) -> float:
+    """Presses per second over the first n presses, pressed batch x threads at a time, each call solved in
+    pieces of `batch`, `threads` pieces at once (after one warm-up call, so compiling is not counted)."""
+    before = batched.MAX_BATCH, batched.THREADS
+    batched.MAX_BATCH, batched.THREADS = batch, threads  # each piece one solve of this size, on any device
+    step = batch * threads
     try:
-        _press(p, sensor, size, 0, batch, reference)
+        _press(p, sensor, size, 0, step, reference)
         t0 = time.perf_counter()
-        for a in range(0, n, batch):
-            _press(p, sensor, size, a, min(a + batch, n), reference)
+        for a in range(0, n, step):
+            _press(p, sensor, size, a, min(a + step, n), reference)
         return n / (time.perf_counter() - t0)
     finally:
-        batched.MAX_BATCH = before
+        batched.MAX_BATCH, batched.THREADS = before
 
 
 def rates(sizes: dict, batches, n: int, reference_n: int, sensor: str = "mini-1-gel1") -> dict:
-    """{size name: {"reference_s", "batched": {batch: presses/s}, "speedup": {batch: ratio}}}, all in this run."""
-    p = presses(max(n, reference_n) + max(batches), seed=1)
+    """{size name: {"reference_s", "batched_s": {batch: presses/s}, "threaded_s": {batch: presses/s with
+    `threads` pieces at once} (on a CPU of more than one core), "speedup": {batch: best ratio}}}, all in this
+    run."""
+    threads = batched.threads()
+    p = presses(max(n, reference_n) + max(batches) * threads, seed=1)
     out = {}
     for name, size in sizes.items():
         ref = _rate(p, sensor, size, reference_n, 1, reference=True)
         new = {int(b): _rate(p, sensor, size, n, int(b)) for b in batches}
-        out[name] = {"render_size": list(size), "reference_s": ref, "batched_s": new,
-                     "speedup": {b: r / ref for b, r in new.items()}, "n": n, "reference_n": reference_n}
+        many = {int(b): _rate(p, sensor, size, n, int(b), threads) for b in batches} if threads > 1 else {}
+        out[name] = {"render_size": list(size), "reference_s": ref, "batched_s": new, "threaded_s": many,
+                     "threads": threads, "speedup": {b: max(r, many.get(b, 0.0)) / ref for b, r in new.items()},
+                     "n": n, "reference_n": reference_n, "loading": LOADING, "steps": STEPS}
     return out
 
 
@@ -77,7 +88,8 @@ def agreement(size, per_shape: int, sensors=None) -> dict:
         p = presses(per_shape * len(shapes), seed=2, shapes=shapes)
         args = ([sim.get_shape(s) for s in p["shape"]], sensor, p["forces"], p["x_mm"], p["y_mm"], p["yaw_deg"],
                 p["tilt_deg"], [int(v) for v in p["seeds"]], tuple(size))
-        new, ref = sim.press_many(*args), sim.press_many(*args, reference=True)
+        how = {"path": LOADING, "steps": STEPS}
+        new, ref = sim.press_many(*args, **how), sim.press_many(*args, reference=True, **how)
         ok = [i for i, (a, b) in enumerate(zip(new, ref))
               if not isinstance(a, ValueError) and not isinstance(b, ValueError)]
         both = [(new[i], ref[i]) for i in ok]
@@ -86,7 +98,7 @@ def agreement(size, per_shape: int, sensors=None) -> dict:
         far = [ok[i] for i in np.flatnonzero(depth > 1)]
         picked = [v if v is sensor else [v[i] for i in far] for v in args[:8]]
         with mechanics.reference_tolerance(1e-8, 1e-6):
-            tight = sim.press_many(*picked, args[8], reference=True) if far else []
+            tight = sim.press_many(*picked, args[8], reference=True, **how) if far else []
         to_tight = {name: max((float(np.abs(path[i].depth - t.depth).max()) * 1000 for i, t in zip(far, tight)),
                               default=0.0) for name, path in (("batched", new), ("reference", ref))}
         image = np.stack([np.abs(a.image.astype(np.int16) - b.image) for a, b in both])

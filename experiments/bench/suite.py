@@ -36,7 +36,8 @@ PLANS = {
         "sim": {"n": {"64x64": 10}, "sizes": {"64x64": (24, 32)}}, "data": {"per_shape": 4, "batches": 3},
         "sim_speed": {"sizes": {"24x32": (24, 32)}, "batches": (1, 8), "n": 8, "reference_n": 4,
                       "agreement_size": (24, 32), "agreement_per_shape": 1, "memory": (8, (24, 32)), "dataset": None},
-        "workers": (0,), "scaling": {"base": "smoke", "batch": (4, 8), "size": (16, 32), "model": ((16, 1), (32, 2))},
+        "workers": (0,),
+        "scaling": {"base": "smoke", "batch": (4, 8), "size": (16, 32), "model": ((16, 1, 2), (32, 2, 2))},
         "dp": None, "bf16_acc": {"preset": "smoke", "steps": 12, "batch": 8}, "profile": True,
         "loop": {"train": 32, "val": 8, "epochs": 2, "val_every": (1, 2)},
     },
@@ -52,7 +53,7 @@ PLANS = {
                       "batches": (1, 8, 32), "n": 128, "reference_n": 32, "agreement_size": (48, 64),
                       "agreement_per_shape": 3, "memory": (256, (240, 320)), "dataset": "quick"},
         "data": {"per_shape": 40, "batches": 30}, "workers": (0, 2),
-        "scaling": {"base": "quick", "batch": (16, 64), "size": (32, 64), "model": ((64, 2), (128, 4))},
+        "scaling": {"base": "quick", "batch": (16, 64), "size": (32, 64), "model": ((64, 2, 4), (128, 4, 4))},
         "dp": {"batch": 64, "warmup": 1, "steps": 2, "rounds": 2},
         "bf16_acc": {"preset": "smoke", "size": 64, "steps": 100, "batch": 32}, "profile": True,
         # the quick preset's epoch (6,000 presses, 600 for validation), validated every epoch or every 5th
@@ -67,7 +68,7 @@ PLANS = {
         "peak_n": 2048, "sim": {"n": {"64x64": 400, "native": 40}, "sizes": {"64x64": (48, 64), "native": (240, 320)}},
         "data": {"per_shape": 100, "batches": 60}, "workers": (0, 2),
         "scaling": {"base": "quick", "batch": (8, 16, 32, 64, 128), "size": (32, 48, 64, 96, 128),
-                    "model": ((64, 2), (96, 3), (128, 4), (192, 6), (256, 8))},
+                    "model": ((64, 2, 4), (96, 3, 4), (128, 4, 4), (192, 6, 6), (256, 8, 8))},
         "dp": {"batch": 64, "warmup": 1, "steps": 3, "rounds": 3},
         "bf16_acc": {"preset": "quick", "size": 64, "steps": 150, "batch": 64}, "profile": True,
         "loop": {"train": 6000, "val": 600, "epochs": 5, "val_every": (1, 5), "rounds": 3},
@@ -219,10 +220,9 @@ def run_scaling(plan: dict, res: dict, base_case: dict | None) -> None:
         out["batch"].append({"x": bsz, **_slim(one(base, bsz, s0))})
     for size in sc["size"]:
         out["size"].append({"x": size, **_slim(one(base, b0, size))})
-    for dim, depth in sc["model"]:
-        cfg = bj.case_cfg(sc["base"], {"model.vit.dim": dim, "model.vit.depth": depth,
-                                       "model.vit.heads": max(1, dim // 32)})
-        out["model"].append({"x": f"{dim}/{depth}", **_slim(one(cfg, b0, s0))})
+    for dim, depth, heads in sc["model"]:  # (dim, depth, heads): the preset's ViT is one of them
+        cfg = bj.case_cfg(sc["base"], {"model.vit.dim": dim, "model.vit.depth": depth, "model.vit.heads": heads})
+        out["model"].append({"x": f"{dim}/{depth}/{heads}", **_slim(one(cfg, b0, s0))})
     res.update(out)
 
 
