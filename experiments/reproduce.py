@@ -49,6 +49,9 @@ def publish(src: Path, dst: Path) -> None:
     if tmp.exists():
         shutil.rmtree(tmp)
     shutil.copytree(src, tmp, ignore=shutil.ignore_patterns(*_NOT_PUBLISHED, "*.partial", "stage.json"))
+    for folder in sorted((p for p in tmp.rglob("*") if p.is_dir()), key=lambda p: -len(p.parts)):
+        if not any(folder.iterdir()):  # held only runs or caches: nothing of it is published
+            folder.rmdir()
     if dst.exists():
         shutil.rmtree(dst)
     tmp.rename(dst)

@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -142,7 +141,12 @@ def check(base: str, small: bool = False) -> dict:
                                capture_output=True)
     return {"base": base_sha, "head": head_sha, "files": changed_sim_files(base_sha, head_sha),
             **compare(got["base"], got["head"]), "seconds": round(time.perf_counter() - t0, 1),
-            "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores"}
+            "machine": _machine()}
+
+
+def _machine() -> str:
+    m = common.machine()
+    return f"{m['cpu_model']}, {m['cores']} cores"
 
 
 def certificates(root=None) -> list[dict]:

@@ -110,11 +110,15 @@ def test_publish_leaves_the_trained_runs_behind(tmp_path):
     (src / "runs" / "dino_rd" / "seed0" / "model.json").write_text("{}")
     (src / "results.json").write_text("{}")
     (src / "table1.md").write_text("t")
+    (src / "share0" / "runs" / "x").mkdir(parents=True)  # a folder of runs only: not published, not even empty
+    (src / "share1" / "runs").mkdir(parents=True)
+    (src / "share1" / "note.md").write_text("n")
     dst = tmp_path / "pub" / "ablation"
     dst.mkdir(parents=True)
     (dst / "stale.md").write_text("old")
     reproduce.publish(src, dst)
-    assert sorted(p.name for p in dst.iterdir()) == ["results.json", "table1.md"]
+    assert sorted(str(p.relative_to(dst)) for p in dst.rglob("*")) == ["results.json", "share1", "share1/note.md",
+                                                                       "table1.md"]
 
 
 def test_an_only_call_keeps_the_other_experiments_records(tmp_path):
