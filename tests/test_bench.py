@@ -86,3 +86,31 @@ def test_a_released_vit_keeps_the_presets_other_keys():
     params = jax.eval_shape(vit.from_config(cfg["model"]["vit"]).init, jax.random.PRNGKey(0),
                             jnp.zeros((1, 224, 224, 3)))
     assert params
+
+
+def test_the_sim_plan_takes_its_accelerator_entries_on_a_gpu_only(monkeypatch):
+    from experiments.bench import sim as bench_sim
+    from ffjax.sim import batched
+
+    plan = bench.PLANS["quick"]["sim_speed"]
+    assert bench_sim.for_device(plan)["batches"] == (1, 8, 32) and "accelerator" not in bench_sim.for_device(plan)
+    monkeypatch.setattr(batched, "on_accelerator", lambda: True)
+    gpu = bench_sim.for_device(plan)
+    assert gpu["batches"] == (1, 8, 32, 128, 256) and gpu["sizes"] == plan["sizes"] and "accelerator" not in gpu
+    assert gpu["sample"]["preset"] == "paper"
+
+
+def test_the_sim_report_states_a_gpu_runs_memory_and_the_paper_sample():
+    from experiments.bench import report as bench_report
+
+    rates = {"48x64": {"render_size": [48, 64], "reference_s": 3.0, "batched_s": {32: 300.0, 256: 900.0},
+                       "threaded_s": {}, "threads": 1, "speedup": {32: 100.0, 256: 300.0}, "loading": "oblique",
+                       "steps": 4}}
+    ss = {"rates": rates, "default_batch": 32,
+          "memory": {"batch": 256, "render_size": [240, 320], "peak_rss_mib": 3000.0, "batch_growth_mib": 900.0,
+                     "piece": 256, "device_peak_mib": 1234.0},
+          "sample": {"preset": "paper", "presses": 2480, "seconds": 62.0, "workers": 1, "batch": 32,
+                     "render_size": [240, 320], "bytes_per_press": 520000.0, "full_presses": 234000}}
+    text = bench_report.sim_tables(ss)
+    assert "300.00 (batch 256)" in text and "pieces of 256" in text and "the device's peak 1,234" in text
+    assert "2,400 presses/min" in text and "1.6 h and 122 GB" in text

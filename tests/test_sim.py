@@ -212,6 +212,24 @@ def test_a_batch_does_not_depend_on_its_order():
     assert np.array_equal(a["image"], b["image"][::-1]) and np.array_equal(a["depth"], b["depth"][::-1])
 
 
+def test_a_batch_above_the_compiled_sizes_takes_a_program_of_its_own(monkeypatch):
+    """MAX_BATCH above batched.BATCHES (a GPU's large batches): the calls are that size, the last one padded to
+    the smallest size that holds it, and the presses come out as in the default pieces (to XLA's last digit)."""
+    from ffjax.sim import batched
+
+    monkeypatch.setattr(batched, "MAX_BATCH", 40)
+    assert list(batched._pieces(100)) == [(0, 40, 40), (40, 80, 40), (80, 100, 32)]
+    n = 34
+    rng = np.random.default_rng(0)
+    forces = np.column_stack([np.zeros((n, 2)), rng.uniform(0.5, 9.0, n)])
+    args = (["ring", "cone"] * (n // 2), "mini-1", forces)
+    big = sim.press_batch(*args, seeds=list(range(n)), size=(24, 32))
+    monkeypatch.setattr(batched, "MAX_BATCH", None)
+    default = sim.press_batch(*args, seeds=list(range(n)), size=(24, 32))
+    np.testing.assert_allclose(big["depth"], default["depth"], atol=1e-6)
+    assert np.abs(big["image"].astype(int) - default["image"]).max() <= 1
+
+
 def test_the_pigment_pattern_belongs_to_the_gel():
     """A gel moved to another unit (Table II's S2 G1) brings its own speckle; another gel has another one."""
     import cv2

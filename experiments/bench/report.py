@@ -324,15 +324,26 @@ def sim_tables(ss: dict | None) -> str:
                              for p in ("batched", "reference"))] for k, v in ag.items()])]
     mem = ss.get("memory")
     if mem:
+        device = (f"; the device's peak {_f(mem['device_peak_mib'])} MiB (jax's allocator)"
+                  if mem.get("device_peak_mib") is not None else "")
         out.append(f"\nPeak resident memory of a fresh process pressing one batch of {mem['batch']} at "
-                   f"{'x'.join(map(str, mem['render_size']))} (solved in pieces of {ss.get('default_batch', '?')}): "
-                   f"{_f(mem['peak_rss_mib'])} MiB "
-                   f"({_f(mem['batch_growth_mib'])} MiB above the process before the batch).\n")
+                   f"{'x'.join(map(str, mem['render_size']))} (solved in pieces of "
+                   f"{mem.get('piece', ss.get('default_batch', '?'))}): {_f(mem['peak_rss_mib'])} MiB "
+                   f"({_f(mem['batch_growth_mib'])} MiB above the process before the batch){device}.\n")
     ds = ss.get("dataset")
     if ds:
         out.append(f"\nThe {ds['preset']} dataset end to end ({ds['presses']:,} presses, {ds['workers']} worker "
                    f"processes): {_f(ds['seconds'])} s; load average before {ds['load_before'][0]:.2f}, after "
                    f"{ds['load_after'][0]:.2f}.\n")
+    sm = ss.get("sample")
+    if sm:
+        rate, gb = sm["presses"] / sm["seconds"], sm["full_presses"] * sm["bytes_per_press"] / 1e9
+        out.append(f"\nA sample of the {sm['preset']} preset's dataset, every split and sensor at "
+                   f"{'x'.join(map(str, sm['render_size']))} ({sm['presses']:,} presses, {sm['workers']} worker "
+                   f"process(es), solves in batches of {sm['batch']}; compiling each sensor's programs included): "
+                   f"{_f(sm['seconds'])} s, {rate * 60:,.0f} presses/min, {sm['bytes_per_press'] / 1e6:.2f} MB per "
+                   f"press on disk. At that rate its {sm['full_presses']:,} presses would take "
+                   f"{sm['full_presses'] / rate / 3600:.1f} h and {gb:,.0f} GB (a projection, not a run).\n")
     return "\n".join(out)
 
 

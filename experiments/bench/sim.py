@@ -13,6 +13,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -58,20 +59,26 @@ def _rate(p: dict, sensor: str, size, n: int, batch: int, threads: int = 1, refe
         batched.MAX_BATCH, batched.THREADS = before
 
 
-def rates(sizes: dict, batches, n: int, reference_n: int, sensor: str = "mini-1-gel1") -> dict:
+def rates(sizes: dict, batches, n: int, reference_n: int, sensor: str = "mini-1-gel1", calls: int = 0,
+          log=print) -> dict:
     """{size name: {"reference_s", "batched_s": {batch: presses/s}, "threaded_s": {batch: presses/s with
     `threads` pieces at once} (on a CPU of more than one core), "speedup": {batch: best ratio}}}, all in this
-    run."""
+    run. Each batch size presses max(n, calls x batch x threads) presses (calls: a GPU's large batches need more
+    than n to be timed over several calls)."""
     threads = batched.threads()
-    p = presses(max(n, reference_n) + max(batches) * threads, seed=1)
+    count = {int(b): max(n, calls * int(b) * threads) for b in batches}
+    p = presses(max(*count.values(), reference_n) + max(batches) * threads, seed=1)
     out = {}
     for name, size in sizes.items():
         ref = _rate(p, sensor, size, reference_n, 1, reference=True)
-        new = {int(b): _rate(p, sensor, size, n, int(b)) for b in batches}
-        many = {int(b): _rate(p, sensor, size, n, int(b), threads) for b in batches} if threads > 1 else {}
+        new = {b: _rate(p, sensor, size, k, b) for b, k in count.items()}
+        many = {b: _rate(p, sensor, size, k, b, threads) for b, k in count.items()} if threads > 1 else {}
         out[name] = {"render_size": list(size), "reference_s": ref, "batched_s": new, "threaded_s": many,
                      "threads": threads, "speedup": {b: max(r, many.get(b, 0.0)) / ref for b, r in new.items()},
-                     "n": n, "reference_n": reference_n, "loading": LOADING, "steps": STEPS}
+                     "n": n, "presses": count, "reference_n": reference_n, "loading": LOADING, "steps": STEPS}
+        log(f"[bench] sim {name}: reference {ref:.1f}/s, batched " + ", ".join(
+            f"batch {b} {r:.1f}/s" for b, r in new.items()) + "".join(
+            f", {threads} threads batch {b} {r:.1f}/s" for b, r in many.items()))
     return out
 
 
@@ -123,42 +130,77 @@ def hwm():
     with open("/proc/self/status") as f:
         return next(int(line.split()[1]) for line in f if line.startswith("VmHWM:")) / 1024
 
-batch, h, w = (int(v) for v in sys.argv[1:4])
+import jax
+from ffjax.sim import batched
+
+batch, h, w, piece = (int(v) for v in sys.argv[1:5])
+batched.MAX_BATCH = piece or None
 p = bs.presses(batch, seed=3)
 before = hwm()
 bs._press(p, "mini-1-gel1", (h, w), 0, batch)
 after = hwm()
-print(json.dumps({"peak_rss_mib": after, "batch_growth_mib": after - before}))
+stats = jax.local_devices()[0].memory_stats() if batched.on_accelerator() else None
+print(json.dumps({"peak_rss_mib": after, "batch_growth_mib": after - before, "piece": batched.max_batch(),
+                  "device_peak_mib": stats["peak_bytes_in_use"] / 2**20 if stats else None}))
 """
 
 
-def peak_memory(batch: int, size) -> dict:
-    """Peak resident memory of a fresh process pressing one batch (after importing everything), in MiB."""
-    r = subprocess.run([sys.executable, "-c", _MEMORY, str(batch), *map(str, size)], capture_output=True, text=True,
-                       check=True, env={**os.environ, "FFJAX_CACHE": "off"})
+def peak_memory(batch: int, size, piece: int = 0) -> dict:
+    """Peak resident memory of a fresh process pressing one batch (after importing everything) in pieces of
+    `piece` presses (0: the device's default), in MiB; on a GPU also the device's peak (jax's allocator, not
+    preallocated)."""
+    env = {**os.environ, "FFJAX_CACHE": "off", "XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
+    r = subprocess.run([sys.executable, "-c", _MEMORY, str(batch), *map(str, size), str(piece)], capture_output=True,
+                       text=True, check=True, env=env)
     return {"batch": batch, "render_size": list(size), **json.loads(r.stdout.strip().splitlines()[-1])}
 
 
-def dataset_time(preset: str, workers: int | None = None) -> dict:
-    """`ffjax.sim.dataset.generate` of a preset's whole dataset into a temporary folder, timed, with the load."""
+def dataset_time(preset: str, workers: int | None = None, overrides: dict | None = None) -> dict:
+    """`ffjax.sim.dataset.generate` of a preset's whole dataset (its data section changed by `overrides`: a
+    sample of a preset too large to time whole) into a temporary folder, timed, with the load."""
+    cfg = configs.get(preset)
+    for key, value in (overrides or {}).items():
+        cfg["data"][key] = value
     with tempfile.TemporaryDirectory() as tmp:
         load = os.getloadavg()
         t0 = time.perf_counter()
-        m = dataset.generate(configs.get(preset), tmp, workers=workers, progress=False)
-        return {"preset": preset, "presses": m["generation"]["samples"], "workers": m["generation"]["workers"],
-                "seconds": time.perf_counter() - t0, "load_before": list(load), "load_after": list(os.getloadavg())}
+        m = dataset.generate(cfg, tmp, workers=workers, progress=False)
+        seconds = time.perf_counter() - t0
+        return {"preset": preset, "overrides": overrides or {}, "presses": m["generation"]["samples"],
+                "workers": m["generation"]["workers"], "batch": batched.max_batch(),
+                "render_size": list(cfg["data"]["render_size"]), "seconds": seconds, "load_before": list(load),
+                "load_after": list(os.getloadavg()), "bytes_per_press": _bytes(tmp) / m["generation"]["samples"]}
+
+
+def _bytes(folder) -> int:
+    return sum(f.stat().st_size for f in Path(folder).rglob("*") if f.is_file())
+
+
+def for_device(plan: dict) -> dict:
+    """The plan, with its "accelerator" entries in place of the CPU's where jax runs on a GPU/TPU."""
+    extra = plan.get("accelerator") if batched.on_accelerator() else None
+    return {k: v for k, v in {**plan, **(extra or {})}.items() if k != "accelerator"}
 
 
 def run(plan: dict, log=print) -> dict:
-    """Every measurement of the plan's "sim_speed" section."""
-    out = {"rates": rates(plan["sizes"], plan["batches"], plan["n"], plan["reference_n"]),
+    """Every measurement of the plan's "sim_speed" section (its "accelerator" entries on a GPU/TPU)."""
+    plan = for_device(plan)
+    out = {"rates": rates(plan["sizes"], plan["batches"], plan["n"], plan["reference_n"],
+                          calls=plan.get("calls", 0), log=log),
            "default_batch": batched.max_batch()}
     log("[bench] sim speedup (best batch): " + ", ".join(
         f"{k} {max(v['speedup'].values()):.2f}x" for k, v in out["rates"].items()))
     out["agreement"] = agreement(tuple(plan["agreement_size"]), plan["agreement_per_shape"],
                                  plan.get("agreement_sensors"))
-    out["memory"] = peak_memory(*plan["memory"])
-    if plan.get("dataset"):
-        out["dataset"] = dataset_time(plan["dataset"])
-        log(f"[bench] {plan['dataset']} dataset: {out['dataset']['seconds']:.0f} s")
+    log("[bench] sim agreement: depth within " + ", ".join(
+        f"{k} {v['depth_um_max']:.2f} um" for k, v in out["agreement"].items()))
+    out["memory"] = peak_memory(*plan["memory"], plan.get("memory_piece", 0))
+    log(f"[bench] sim memory: {out['memory']}")
+    for key, spec in (("dataset", plan.get("dataset")), ("sample", plan.get("sample"))):
+        if spec:
+            preset, over = (spec, None) if isinstance(spec, str) else (spec["preset"], spec["set"])
+            full = sum(s.count for s in dataset.split_specs(configs.get(preset)))
+            out[key] = {**dataset_time(preset, overrides=over), "full_presses": full}
+            log(f"[bench] {preset} dataset{' (sample)' if over else ''}: {out[key]['presses']} presses in "
+                f"{out[key]['seconds']:.0f} s")
     return out

@@ -51,7 +51,17 @@ PLANS = {
         # the layer solves batched against the numpy reference per render size and batch; the quick dataset
         "sim_speed": {"sizes": {"48x64": (48, 64), "120x160": (120, 160), "240x320": (240, 320)},
                       "batches": (1, 8, 32), "n": 128, "reference_n": 32, "agreement_size": (48, 64),
-                      "agreement_per_shape": 3, "memory": (256, (240, 320)), "dataset": "quick"},
+                      "agreement_per_shape": 3, "memory": (256, (240, 320)), "dataset": "quick",
+                      # on a GPU: larger batches (timed over 4 calls each), the agreement on one sensor per gel
+                      # (the Minis of one gel agree alike), one call of 256 for the memory, and a sample of the
+                      # paper preset's dataset (2,480 presses at 240x320 over all its splits and sensors)
+                      "accelerator": {"batches": (1, 8, 32, 128, 256), "n": 16, "calls": 4, "reference_n": 16,
+                                      "agreement_sensors": ("mini-1-gel1", "mini-1-gel2", "mini-1-gel3", "digit"),
+                                      "agreement_per_shape": 2, "memory_piece": 256,
+                                      "sample": {"preset": "paper", "set": {
+                                          "train_per_indenter": 200, "val_per_indenter": 10,
+                                          "unseen_per_object": 10, "sensor_test_per_indenter": 2,
+                                          "calib_samples": 10}}}},
         "data": {"per_shape": 40, "batches": 30}, "workers": (0, 2),
         "scaling": {"base": "quick", "batch": (16, 64), "size": (32, 64), "model": ((64, 2, 4), (128, 4, 4))},
         "dp": {"batch": 64, "warmup": 1, "steps": 2, "rounds": 2},

@@ -50,7 +50,8 @@ def on_accelerator() -> bool:
 
 
 def max_batch() -> int:
-    """The most presses one call of a solve takes: MAX_BATCH when set, else 32 on an accelerator, 8 on a CPU."""
+    """The most presses one call of a solve takes: MAX_BATCH when set (any size; one above BATCHES[-1] compiles
+    programs of that size too), else 32 on an accelerator, 8 on a CPU."""
     return MAX_BATCH or (BATCHES[-1] if on_accelerator() else 8)
 
 
@@ -205,7 +206,7 @@ def _pieces(n: int):
     top = max_batch()
     for a in range(0, n, top):
         m = min(top, n - a)
-        yield a, a + m, next(b for b in BATCHES if b >= m)
+        yield a, a + m, next((b for b in BATCHES if b >= m), top)  # above BATCHES: MAX_BATCH, set by hand
 
 
 def _padded(x: np.ndarray, size: int) -> np.ndarray:
