@@ -9,6 +9,7 @@ docstring); this is its command line, here because the presets (configs) sit abo
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 import configs
@@ -17,19 +18,29 @@ from ffjax.sim import batched, dataset
 
 
 def main(argv=None) -> int:
+    # the solves take little of a GPU's memory (~0.6 GiB for 256 presses at 240x320) and worker processes share it:
+    # none may take 75% up front (XLA's default), this one included (set before jax starts its backend)
+    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
     ap = argparse.ArgumentParser(prog="python -m ffjax.simulate", description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="quick", choices=configs.PRESETS,
-                    help="dataset size (default: quick). Measured on a 2-core CPU: smoke seconds; quick 11,300 "
-                         "presses in ~6 min; paper ~235K at 240x320, meant for a GPU")
+                    help="dataset size (default: quick). Measured: smoke seconds; quick 11,300 presses in 11 min "
+                         "on a 2-core CPU, 36 s on one H200 with 8 workers; paper 234K at 240x320, for a GPU "
+                         "(~46 min there, projected from a sample)")
     ap.add_argument("--out", required=True)
     ap.add_argument("--force", action="store_true", help="delete a dataset made with another config")
-    ap.add_argument("--workers", type=int, default=None, help="processes (default: CPU count, max 8; one on a GPU)")
+    ap.add_argument("--workers", type=int, default=None,
+                    help="processes (default: CPU count, max 8; on a GPU too, all sharing it)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override, e.g. "
                     "data.train_per_indenter=100")
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
     cfg = configs.from_cli(ap, args.preset, args.set)
     batched.use_disk_cache()  # this process's compiled solves, for the next run
+    if args.workers is None and batched.on_accelerator():
+        # dataset.generate keeps a caller on a GPU to one process (its jax may hold most of the GPU's memory); here
+        # nothing else holds it, and a press's optics and files, on the CPU, cost as much as its solves on the
+        # GPU: on one H200 the quick dataset took 114 s in one process, 47 s with 4 workers and 36 s with 8
+        args.workers = min(os.cpu_count() or 1, 8)
     m = dataset.generate(cfg, args.out, force=args.force, workers=args.workers, progress=not args.quiet)
     gen = m["generation"]
     print(f"{args.out}: {len(m['splits'])} splits, {gen['samples']} presses "

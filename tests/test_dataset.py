@@ -188,3 +188,24 @@ def test_seating_of_training_presses(root, cfg, tmp_path):
     assert median_ratio("cube") < 0.8 * median_ratio("sphere_small")
     assert "How seated the training presses are" in (tmp_path / "low_force.md").read_text()
     assert (tmp_path / "low_force.png").stat().st_size > 0
+
+
+def test_the_cli_shares_a_gpu_among_workers_and_takes_none_of_its_memory_up_front(monkeypatch, tmp_path):
+    """On a GPU `python -m ffjax.simulate` starts a worker per core (at most 8; the optics and files are on the
+    CPU) and no process preallocates the GPU; `--workers` still decides; on a CPU the library's default stands."""
+    import os
+
+    from ffjax import simulate
+    from ffjax.sim import batched, dataset
+
+    seen = []
+    fake = {"splits": {}, "generation": {"samples": 0, "rendered": 0, "seconds": 0.0, "samples_per_minute": 0,
+                                          "workers": 1}}
+    monkeypatch.setattr(dataset, "generate", lambda cfg, out, force, workers, progress: seen.append(workers) or fake)
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_PREALLOCATE", raising=False)
+    simulate.main(["--preset", "smoke", "--out", str(tmp_path), "--quiet"])
+    assert os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] == "false"
+    monkeypatch.setattr(batched, "on_accelerator", lambda: True)
+    simulate.main(["--preset", "smoke", "--out", str(tmp_path), "--quiet"])
+    simulate.main(["--preset", "smoke", "--out", str(tmp_path), "--quiet", "--workers", "3"])
+    assert seen == [None, min(os.cpu_count() or 1, 8), 3]
