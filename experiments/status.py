@@ -79,17 +79,17 @@ def _same_code(commit: str, old: str, new: str, root=None, head: str = "HEAD") -
 
 
 def certified(commit: str, root=None) -> set[str]:
-    """The simulator's files whose change since `commit` a certificate vouches for (`experiments.same_output`: the
-    code of its base and of its head rendered the same bytes): those of every certificate whose base holds the
-    code `commit` holds in its files, and whose head holds the code HEAD holds."""
+    """The simulator's files whose change since `commit` certificates vouch for (`experiments.same_output`: the
+    code of a certificate's base and of its head rendered the same bytes). They chain, in the order recorded: a
+    certificate whose base holds the code the files hold by then (at `commit`, or at the head of the certificate
+    before) moves them to its head's code; the files that end at the code HEAD holds are vouched for."""
     from experiments import same_output
 
-    out: set[str] = set()
+    at: dict[str, str] = {}  # file -> the commit whose code it holds after the certificates so far
     for c in same_output.certificates(root):
-        if all(_same_code(commit, f, f, root, head=c["base"]) and _same_code(c["head"], f, f, root)
-               for f in c["files"]):
-            out.update(c["files"])
-    return out
+        if all(_same_code(at.get(f, commit), f, f, root, head=c["base"]) for f in c["files"]):
+            at.update(dict.fromkeys(c["files"], c["head"]))
+    return {f for f, rev in at.items() if _same_code(rev, f, f, root)}
 
 
 def changed_since(commit: str, paths, root=None, certificates: bool = False) -> list[str] | None:

@@ -192,9 +192,13 @@ def test_a_certified_change_of_the_simulator_is_no_change_of_numbers(tmp_path):
     assert status.changed_since(first, paths, root=repo, certificates=True) == ["lib/b.py"]
     assert sorted(status.changed_since(first, paths, root=repo)) == ["ffjax/sim/a.py", "lib/b.py"]  # a benchmark
     assert status.changed_since(second, paths, root=repo, certificates=True) == []
-    _commit(repo, {"ffjax/sim/a.py": "x = 3\n"}, "new physics")
+    third = _commit(repo, {"ffjax/sim/a.py": "x = 3\n"}, "new physics")
     assert sorted(status.changed_since(first, paths, root=repo, certificates=True)) == ["ffjax/sim/a.py",
                                                                                          "lib/b.py"]
+    # certificates chain: first's code -> second's, then second's -> third's
+    record["certified"].append({"base": second, "head": third, "files": ["ffjax/sim/a.py"]})
+    _commit(repo, {"experiments/same_output.json": json.dumps(record)}, "certify again")
+    assert status.changed_since(first, paths, root=repo, certificates=True) == ["lib/b.py"]
 
 
 def test_the_benchmarks_alone_time_the_simulator():
