@@ -31,7 +31,8 @@ class Experiment:
     cell_seeds: the number of seeds of each of its cells, from its results.json, where cells differ (a sweep's
     cells reused from the ablation carry its seeds; None: the result's own seeds); speed: its numbers are the
     speed of the code it runs, so a change certified to give the same outputs (experiments.same_output) still
-    changes them."""
+    changes them; on_request: `reproduce` runs it only when named; flags: which of reproduce's --quiet and --data
+    (the pipeline's dataset) its command takes."""
 
     name: str
     module: str
@@ -43,7 +44,8 @@ class Experiment:
     numbers: tuple = ()
     figures: tuple = ()
     in_pipeline: bool = True
-    takes_common_flags: bool = True  # --quiet and --data, as experiments.common's parser gives them
+    on_request: bool = False  # in the pipeline, run only when named (`reproduce --only NAME`): too long for the rest
+    flags: tuple = ("--quiet", "--data")  # the common flags its command takes (reproduce gives them)
     cell_seeds: Callable[[dict], list] | None = None
     speed: bool = False
 
@@ -180,10 +182,13 @@ EXPERIMENTS = (
                _has("per_beta"), _replot_sweep, args=_trains_seeds,
                reuses="ablation", figures=("experiments/tables.py", "experiments/style.py"),
                cell_seeds=lambda r: [len(v["per_seed"]) for v in r["per_beta"].values()]),
+    # on request: its two more datasets (shares 0 and 0.5) and their trainings cost ~80 min on a 2-core Zen 1 VM
+    # (~35 on Zen 4), more than the sweep, the chart and stability together; it probes a parameter no frame can
+    # measure, where the rest are the paper's results and their companions
     Experiment("pattern_share", "experiments.pattern_share",
                "Table II when none, half or all of the sensor's fine fixed pattern is the gel's pigment (a share no "
                "frame at rest can measure)", _has("per_share", "nominal_share"), _replot_pattern,
-               args=_pattern_args, reuses="ablation", figures=("experiments/style.py",),
+               args=_pattern_args, reuses="ablation", figures=("experiments/style.py",), on_request=True,
                cell_seeds=lambda r: [len(v["per_seed"]) for c in r["per_share"].values()
                                      for v in c["methods"].values()]),
     Experiment("pareto", "experiments.pareto",
@@ -202,11 +207,11 @@ EXPERIMENTS = (
     Experiment("bench-sim", "experiments.bench",
                "The simulator's speed: batched solves against the numpy reference, their agreement, a dataset's time",
                lambda r: r.get("experiment") == "bench" and "sim_speed" in r, _replot_bench,
-               args=_bench("sim"), numbers=("experiments/bench",), takes_common_flags=False, speed=True),
+               args=_bench("sim"), numbers=("experiments/bench",), flags=("--data",), speed=True),
     Experiment("bench", "experiments.bench",
                "ffjax against PyTorch: train and inference speed, scaling, the loop against its step",
                lambda r: r.get("experiment") == "bench", _replot_bench, args=_bench(None),
-               numbers=("experiments/bench",), takes_common_flags=False, speed=True),
+               numbers=("experiments/bench",), flags=(), speed=True),
     Experiment("contact_probe", "experiments.diagnostics.contact_probe",
                "Where a contact's edge is read: the layer's contact against the rendered frame",
                _has("edge_mm", "per_shape"), _replot_probe("contact_probe"),
@@ -224,15 +229,15 @@ EXPERIMENTS = (
     Experiment("rest_recording", "experiments.diagnostics.rest_recording",
                "A sensor at rest: a real GelSight Mini's noise, fixed pattern, drift and colour against the simulator",
                _has("sources", "highpass_px"), _replot_probe("rest_recording"),
-               figures=_DRAWS, in_pipeline=False, takes_common_flags=False),
+               figures=_DRAWS, in_pipeline=False, flags=()),
     Experiment("buried_load_check", "experiments.diagnostics.buried_load_check",
                "Where a body in stick holds the gel: the layer's stick solve against a finite-element model",
                _has("cases", "all_within_band"), _replot_probe("buried_load_check"),
-               figures=_DRAWS, in_pipeline=False, takes_common_flags=False),
+               figures=_DRAWS, in_pipeline=False, flags=()),
     Experiment("low_force", "experiments.diagnostics.low_force",
                "How well can a frame tell Fz at light loads on wide contacts, and what do models read there?",
                _has("physics", "render_size"), _replot_probe("low_force"),
-               figures=_DRAWS, in_pipeline=False, takes_common_flags=False),
+               figures=_DRAWS, in_pipeline=False, flags=()),
     Experiment("faults", "tests.reliability.faults",
                "What holds and what fails when a user or a fault misuses the tools", _has("kills_per_part"),
                numbers=("tests/reliability",), in_pipeline=False),
@@ -252,5 +257,10 @@ def kind_of(results: dict) -> Experiment | None:
 
 
 def pipeline() -> tuple:
-    """The experiments `experiments.reproduce` runs, in order (an experiment after the one it reuses)."""
+    """The experiments `experiments.reproduce` can run, in order (an experiment after the one it reuses)."""
     return tuple(e for e in EXPERIMENTS if e.in_pipeline)
+
+
+def one_command() -> tuple:
+    """The pipeline's experiments that `experiments.reproduce` runs when none is named."""
+    return tuple(e for e in pipeline() if not e.on_request)

@@ -4,7 +4,8 @@
                                     [--no-publish] [--data DIR] [--quiet]
 
 Runs each experiment of experiments.catalog's pipeline in order (the ablation with 3 seeds, the loss sweep, the
-speed/accuracy chart, stability, downstream, the simulator's benchmark), each into WORK/<name> (default WORK:
+speed/accuracy chart, stability, downstream, both benchmarks; those marked on request, such as pattern_share, only
+when --only names them), each into WORK/<name> (default WORK:
 results/reproduce-<preset>); an experiment that reads trained runs reads the ablation's (--ablation
 WORK/ablation), so nothing is trained twice, and every stage is cached: a killed or repeated call continues
 where it stopped; WORK/reproduce.json records each experiment's wall time as it finishes, so a kill loses none
@@ -30,9 +31,10 @@ _NOT_PUBLISHED = ("runs", "checkpoints", "cache", "frames")
 
 
 def argv_for(exp: catalog.Experiment, preset: str, work: Path, quiet: bool, data: str | None = None) -> list[str]:
-    """The command line of one experiment in the pipeline."""
-    extra = [*(["--quiet"] if quiet else []), *(["--data", str(data)] if data else [])]
-    return [*exp.args(preset, work), "--out", str(work / exp.name), *(extra if exp.takes_common_flags else [])]
+    """The command line of one experiment in the pipeline, with the common flags it takes."""
+    given = {"--quiet": [] if quiet else None, "--data": [str(data)] if data else None}
+    extra = [a for flag in exp.flags if given[flag] is not None for a in (flag, *given[flag])]
+    return [*exp.args(preset, work), "--out", str(work / exp.name), *extra]
 
 
 def run_one(exp: catalog.Experiment, argv: list[str]) -> float:
@@ -77,7 +79,8 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
     ap.add_argument("--preset", default="quick", choices=configs.PRESETS)
     ap.add_argument("--only", nargs="+", default=None, metavar="NAME",
-                    help=f"a subset of the pipeline ({', '.join(e.name for e in catalog.pipeline())})")
+                    help=f"a subset of the pipeline ({', '.join(e.name for e in catalog.pipeline())}); without it, "
+                         f"all but {', '.join(e.name for e in catalog.pipeline() if e.on_request) or 'none'}")
     ap.add_argument("--work", default=None, help="where the experiments run and keep their trained runs "
                                                   "(default: results/reproduce-<preset>)")
     ap.add_argument("--publish", default=None, help="where the results are published (default: docs/results/<preset>)")
@@ -85,16 +88,17 @@ def main(argv=None) -> dict:
     ap.add_argument("--data", default=None, help="dataset folder (default: data/<preset>, made if missing)")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
-    chosen = catalog.pipeline()
+    chosen = catalog.one_command()
     if args.only:
-        names = {e.name for e in chosen}
+        names = {e.name for e in catalog.pipeline()}
         for n in args.only:
             if n not in names:
                 ap.error(f"--only {n}: not in the pipeline ({', '.join(sorted(names))})")
-        chosen = tuple(e for e in chosen if e.name in args.only)
+        chosen = tuple(e for e in catalog.pipeline() if e.name in args.only)
     work = Path(args.work or common.ROOT / "results" / f"reproduce-{args.preset}").absolute()
     dest = None if args.no_publish else Path(args.publish or common.ROOT / "docs" / "results" / args.preset)
     from ffjax import cli
+    from ffjax.sim import dataset
 
     cli.check_out(ap, work, "--work")
     if dest is not None:
@@ -106,10 +110,13 @@ def main(argv=None) -> dict:
         print("warning: tracked files differ from the commit (published results too): every result of this run "
               "records it ran on uncommitted changes, which experiments.status calls stale. Commit first.",
               file=sys.stderr)
-    record = {"preset": args.preset, "commit": commit, "load_start": list(os.getloadavg()), "experiments": {}}
+    # one dataset for the whole pipeline: the ablation makes it, the simulator's benchmark reads its time
+    data = Path(args.data or dataset.default_root(args.preset)).absolute()
+    record = {"preset": args.preset, "commit": commit, "machine": common.machine(),
+              "ran": [e.name for e in chosen], "load_start": list(os.getloadavg()), "experiments": {}}
     t0 = time.perf_counter()
     for exp in chosen:
-        line = argv_for(exp, args.preset, work, args.quiet, args.data and Path(args.data).absolute())
+        line = argv_for(exp, args.preset, work, args.quiet, data)
         print(f"[reproduce] {exp.name}: python -m {exp.module} {' '.join(line)}", file=sys.stderr, flush=True)
         fresh = not (work / exp.name).exists()  # else cached stages may be reused: its wall time is not its cost
         record["experiments"][exp.name] = {"argv": line, "wall_s": run_one(exp, line), "fresh": fresh,

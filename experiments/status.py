@@ -228,6 +228,11 @@ def index(rows, root, record: dict | None = None) -> str:
                   "did its work), load average "
                   f"{record['load_start'][0]:.1f} at the start of the last call and {record['load_end'][0]:.1f} "
                   "at its end.", ""]
+        if record.get("ran") and "wall_s" in record:  # the last call alone: one commit, one machine, one clock
+            m = record.get("machine") or {}
+            lines += [f"The last call ran {', '.join(record['ran'])} at `{record['commit'][:12]}`"
+                      + (f" on {m['cpu_model']} ({m['cores']} cores)" if m else "")
+                      + f": {record['wall_s'] / 60:.0f} min wall.", ""]
     body = []
     for r in rows:
         e = r.experiment

@@ -114,3 +114,40 @@ def test_the_sim_report_states_a_gpu_runs_memory_and_the_paper_sample():
     text = bench_report.sim_tables(ss)
     assert "300.00 (batch 256)" in text and "pieces of 256" in text and "the device's peak 1,234" in text
     assert "2,400 presses/min" in text and "1.6 h and 122 GB" in text
+
+
+def test_a_made_datasets_time_is_read_only_when_its_call_is_the_measurement(tmp_path):
+    """The simulator's benchmark reads the quick dataset's time from the pipeline's dataset instead of making a
+    second one, but only from a manifest of the preset's whole dataset, rendered in one call by today's
+    simulator with the default workers."""
+    import json
+
+    import configs
+    from experiments.bench import sim as bench_sim
+    from ffjax.sim import dataset
+
+    cfg = configs.get("smoke")
+    n = sum(s.count for s in dataset.split_specs(cfg))
+    good = {"preset": "smoke", "sim_fingerprint": dataset.sim_fingerprint(), "data_config": cfg["data"],
+            "generation": {"samples": n, "rendered": n, "seconds": 12.5,
+                           "workers": dataset.default_workers(n, 2000)}}
+
+    def made(**change):
+        m = json.loads(json.dumps(good))
+        for key, value in change.items():
+            *path, last = key.split("__")
+            d = m
+            for k in path:
+                d = d[k]
+            d[last] = value
+        (tmp_path / "manifest.json").write_text(json.dumps(m))
+        return bench_sim.made_time(tmp_path, "smoke")
+
+    assert bench_sim.made_time(tmp_path, "smoke") is None  # nothing made there
+    t = made()
+    assert t["seconds"] == 12.5 and t["presses"] == n and t["made_in"] == str(tmp_path) and t["load_before"] is None
+    assert made(sim_fingerprint="0" * 16) is None  # another simulator
+    assert made(generation__rendered=n - 1) is None  # resumed: part of it made by an earlier call
+    assert made(generation__workers=good["generation"]["workers"] + 1) is None
+    assert made(data_config__fz_max=99.0) is None  # another config
+    assert made(preset="quick") is None

@@ -34,8 +34,9 @@ def test_the_smoke_pipeline_end_to_end(tmp_path, monkeypatch):
     monkeypatch.setitem(bench_suite.PLANS, "smoke", _bench_plans.PIPELINE)
     record = reproduce.main(["--preset", "smoke", "--work", str(work), "--publish", str(published),
                              "--data", str(data), "--quiet"])
-    pipeline = catalog.pipeline()
-    assert set(record["experiments"]) == {e.name for e in pipeline}
+    pipeline = catalog.one_command()
+    assert set(record["experiments"]) == {e.name for e in pipeline} and record["ran"] == [e.name for e in pipeline]
+    assert [e.name for e in catalog.pipeline() if e.on_request] == ["pattern_share"]  # named with --only only
 
     # every experiment published: the folder its catalog entry names, a results.json of its own kind, no runs
     for e in pipeline:
@@ -89,7 +90,11 @@ def test_the_smoke_pipeline_end_to_end(tmp_path, monkeypatch):
 
     # both benchmarks: every section of the whole one, the simulator's paths and their agreement
     _bench_plans.check_bench(published / "bench", common.read_json(published / "bench" / "results.json"))
-    _bench_plans.check_sim(published / "bench-sim", common.read_json(published / "bench-sim" / "results.json"))
+    sim_res = common.read_json(published / "bench-sim" / "results.json")
+    _bench_plans.check_sim(published / "bench-sim", sim_res)
+    made = sim_res["sim_speed"]["dataset"]  # the ablation's dataset, timed by the call that made it: not made twice
+    assert made["made_in"] == str(data.absolute()) and made["seconds"] > 0 and made["presses"] > 0
+    assert "timed by the call that made the pipeline's dataset" in (published / "bench-sim" / "report.md").read_text()
 
     # a cell the ablation trained takes every further seed it finished (here: a copy re-keyed as seed 1)
     cfg, spec = configs.get("smoke"), registry.get("dino_rd")
@@ -109,6 +114,7 @@ def test_the_smoke_pipeline_end_to_end(tmp_path, monkeypatch):
     index = (published / "README.md").read_text()
     for e in pipeline:
         assert f"--only {e.name}`" in index, e.name
+    assert f"The last call ran {', '.join(e.name for e in pipeline)} at `{common.git_commit()[:12]}` on " in index
     saved = json.loads((published / "reproduce.json").read_text())
     assert saved["preset"] == "smoke" and set(saved["experiments"]) == set(record["experiments"])
     rows = status.check_all(published)

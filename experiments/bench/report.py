@@ -332,9 +332,11 @@ def sim_tables(ss: dict | None) -> str:
                    f"({_f(mem['batch_growth_mib'])} MiB above the process before the batch){device}.\n")
     ds = ss.get("dataset")
     if ds:
+        load = (f"load average before {ds['load_before'][0]:.2f}, after {ds['load_after'][0]:.2f}"
+                if ds.get("load_before") else "timed by the call that made the pipeline's dataset, "
+                f"{ds['made_in']} (its manifest; that call recorded no load)")
         out.append(f"\nThe {ds['preset']} dataset end to end ({ds['presses']:,} presses, {ds['workers']} worker "
-                   f"processes): {_f(ds['seconds'])} s; load average before {ds['load_before'][0]:.2f}, after "
-                   f"{ds['load_after'][0]:.2f}.\n")
+                   f"processes): {_f(ds['seconds'])} s; {load}.\n")
     sm = ss.get("sample")
     if sm:
         rate, gb = sm["presses"] / sm["seconds"], sm["full_presses"] * sm["bytes_per_press"] / 1e9

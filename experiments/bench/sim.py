@@ -3,7 +3,8 @@
 and for the agreement checks), in one run, per render size, batch size and number of threads, pressed as the
 dataset presses (the oblique press in data.path_steps increments: path_steps + 1 normal and path_steps stick
 solves each); their agreement on every indenter, unseen object and sensor; the peak memory of one batch; and a
-preset's whole dataset, end to end."""
+preset's whole dataset, end to end (read from a made dataset's manifest where the call that made it is that
+measurement: `--data`, as the pipeline gives it)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import configs
+from experiments import common
 from ffjax import sim
 from ffjax.sim import batched, dataset, mechanics
 
@@ -158,9 +160,7 @@ def peak_memory(batch: int, size, piece: int = 0) -> dict:
 def dataset_time(preset: str, workers: int | None = None, overrides: dict | None = None) -> dict:
     """`ffjax.sim.dataset.generate` of a preset's whole dataset (its data section changed by `overrides`: a
     sample of a preset too large to time whole) into a temporary folder, timed, with the load."""
-    cfg = configs.get(preset)
-    for key, value in (overrides or {}).items():
-        cfg["data"][key] = value
+    cfg = configs.get(preset, {f"data.{k}": v for k, v in (overrides or {}).items()})
     with tempfile.TemporaryDirectory() as tmp:
         load = os.getloadavg()
         t0 = time.perf_counter()
@@ -170,6 +170,26 @@ def dataset_time(preset: str, workers: int | None = None, overrides: dict | None
                 "workers": m["generation"]["workers"], "batch": batched.max_batch(),
                 "render_size": list(cfg["data"]["render_size"]), "seconds": seconds, "load_before": list(load),
                 "load_after": list(os.getloadavg()), "bytes_per_press": _bytes(tmp) / m["generation"]["samples"]}
+
+
+def made_time(folder, preset: str) -> dict | None:
+    """A made dataset's time from its manifest, as dataset_time gives it, when the call that made it is what
+    dataset_time would time: the preset's whole dataset, every press rendered in that one call, by today's
+    simulator with the default workers; else None. The load was not recorded there (None)."""
+    m = common.read_json(Path(folder) / "manifest.json")
+    if not m:
+        return None
+    cfg, gen = configs.get(preset), m["generation"]
+    same = (m.get("preset") == preset and m.get("sim_fingerprint") == dataset.sim_fingerprint()
+            and m.get("data_config") == json.loads(json.dumps(cfg["data"]))
+            and gen["rendered"] == gen["samples"] == sum(s.count for s in dataset.split_specs(cfg))
+            and gen["workers"] == dataset.default_workers(gen["samples"], 2000))
+    if not same:
+        return None
+    return {"preset": preset, "overrides": {}, "presses": gen["samples"], "workers": gen["workers"],
+            "batch": batched.max_batch(), "render_size": list(cfg["data"]["render_size"]), "seconds": gen["seconds"],
+            "load_before": None, "load_after": None, "bytes_per_press": _bytes(folder) / gen["samples"],
+            "made_in": str(Path(folder).absolute())}
 
 
 def _bytes(folder) -> int:
@@ -182,8 +202,10 @@ def for_device(plan: dict) -> dict:
     return {k: v for k, v in {**plan, **(extra or {})}.items() if k != "accelerator"}
 
 
-def run(plan: dict, log=print) -> dict:
-    """Every measurement of the plan's "sim_speed" section (its "accelerator" entries on a GPU/TPU)."""
+def run(plan: dict, log=print, data=None) -> dict:
+    """Every measurement of the plan's "sim_speed" section (its "accelerator" entries on a GPU/TPU). The preset's
+    dataset is timed by the call that made `data` where made_time takes it (the pipeline's: its ablation made it
+    moments before), else made anew in a temporary folder."""
     plan = for_device(plan)
     out = {"rates": rates(plan["sizes"], plan["batches"], plan["n"], plan["reference_n"],
                           calls=plan.get("calls", 0), log=log),
@@ -200,7 +222,8 @@ def run(plan: dict, log=print) -> dict:
         if spec:
             preset, over = (spec, None) if isinstance(spec, str) else (spec["preset"], spec["set"])
             full = sum(s.count for s in dataset.split_specs(configs.get(preset)))
-            out[key] = {**dataset_time(preset, overrides=over), "full_presses": full}
+            made = made_time(data, preset) if data and not over else None
+            out[key] = {**(made or dataset_time(preset, overrides=over)), "full_presses": full}
             log(f"[bench] {preset} dataset{' (sample)' if over else ''}: {out[key]['presses']} presses in "
-                f"{out[key]['seconds']:.0f} s")
+                f"{out[key]['seconds']:.0f} s" + (f" (made in {data})" if made else ""))
     return out

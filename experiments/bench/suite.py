@@ -335,9 +335,10 @@ ONLY = {"loop": "the training loop against its own step", "bf16": "bfloat16 agai
         "sim": "the simulator's batched solves against the numpy reference, and a preset's dataset"}
 
 
-def run_only(part: str, mode: str | dict, out: str | Path | None = None, log=print) -> dict:
+def run_only(part: str, mode: str | dict, out: str | Path | None = None, log=print, made=None) -> dict:
     """One part of `mode` (a PLANS name or a plan dict with a "name") on its own (`--only loop|bf16|sim`; loop and
-    bf16 on a split the simulator renders): results.json and report.md in results/bench-<part>-<mode>."""
+    bf16 on a split the simulator renders): results.json and report.md in results/bench-<part>-<mode>. made: a
+    made dataset whose manifest may give sim's dataset time (bench.sim.made_time)."""
     from experiments.bench import loop as bd
     from experiments.bench import report as bench_report
     from ffjax import data
@@ -354,7 +355,7 @@ def run_only(part: str, mode: str | dict, out: str | Path | None = None, log=pri
         if part == "sim":
             from experiments.bench import sim as bench_sim
 
-            res["sim_speed"] = bench_sim.run(plan["sim_speed"], log)
+            res["sim_speed"] = bench_sim.run(plan["sim_speed"], log, made)
         else:
             cfg = bj.case_cfg(case["preset"])
             cfg["data"]["render_size"] = tuple(plan["sim"]["sizes"]["64x64"])
@@ -499,11 +500,14 @@ def main(argv=None):
                     help="where jax and the PyTorch side run (auto: a GPU when jax has one)")
     ap.add_argument("--torch-compile", action=argparse.BooleanOptionalAction, default=None,
                     help="also time torch.compile (default: on a GPU only)")
+    ap.add_argument("--data", default=None, help="--only sim: a made dataset of the preset, whose manifest gives "
+                                                  "the dataset's time where today's simulator made it whole in one "
+                                                  "call (else the benchmark makes one)")
     a = ap.parse_args(argv)
     select_device(a.device)
     mode = "smoke" if a.smoke else "quick" if a.quick else "full"
     if a.only:
-        run_only(a.only, mode, a.out)
+        run_only(a.only, mode, a.out, made=a.data)
         return
     run(mode, a.out, a.torch_python, skip=tuple(a.skip), torch_compile=a.torch_compile)
 
