@@ -96,3 +96,4 @@ def check_sim(out, res: dict) -> None:
     assert res["sim_speed"]["memory"]["peak_rss_mib"] > 0
     text = (out / "report.md").read_text()
     assert "batched layer solves against the numpy reference" in text and "Agreement on the same presses" in text
+    assert (out / "sim_speed.png").stat().st_size > 10_000 and "![sim_speed](sim_speed.png)" in text

@@ -361,20 +361,21 @@ def only_report(res: dict) -> str:
         loop_table(_g(res, "data", "loop_efficiency")),
         bf16_table(res.get("bf16_methods")),
         sim_tables(res.get("sim_speed")),
+        *(f"\n![{Path(p).stem}]({Path(p).name})\n" for p in res.get("plots", [])),
     ])
 
 
 def plots(res: dict, out: Path) -> list[str]:
-    """One PNG per scaling axis: ms/step and compiled peak memory."""
+    """One PNG per scaling axis: ms/step and compiled peak memory; the simulator's rates (sim_plot)."""
+    files = [sim_plot(res, out)] if res.get("sim_speed") else []
     sc = res.get("scaling")
     if not sc:
-        return []
+        return files
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    files = []
     labels = {"batch": "batch size", "size": "image size (px)", "model": "ViT dim/depth/heads"}
     for axis, pts in sc.items():
         if not pts:
@@ -400,3 +401,52 @@ def plots(res: dict, out: Path) -> list[str]:
         plt.close(fig)
         files.append(str(path))
     return files
+
+
+def sim_plot(res: dict, out: Path) -> str:
+    """sim_speed.png: presses/s of the batched solves against the batch size, per render size (one thread, and
+    the pieces solved one per core where measured), with the numpy reference's rate as a flat line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rates = res["sim_speed"]["rates"]
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for i, (size, v) in enumerate(rates.items()):
+        colour = f"C{i}"
+        bs = sorted(v["batched_s"], key=int)
+        ax.plot([int(b) for b in bs], [v["batched_s"][b] for b in bs], "o-", color=colour, label=f"{size} batched")
+        if v.get("threaded_s"):
+            ax.plot([int(b) for b in bs], [v["threaded_s"][b] for b in bs], "s--", color=colour, mfc="white",
+                    label=f"{size} batched, {v['threads']} threads")
+        ax.axhline(v["reference_s"], color=colour, ls=":", lw=1.5, label=f"{size} numpy reference")
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xticks(sorted({int(b) for v in rates.values() for b in v["batched_s"]}))
+    plain = FuncFormatter(lambda v, _: f"{v:g}")
+    ax.xaxis.set_major_formatter(plain)
+    ax.yaxis.set_major_formatter(plain)
+    ax.yaxis.set_minor_formatter(NullFormatter())
+    ax.set_yticks([t for t in (1, 2, 3, 5, 10, 20, 30, 50, 100, 200, 300, 500, 1000)
+                   if 0.8 * min(v["reference_s"] for v in rates.values()) <= t
+                   <= 1.25 * max(max([*v["batched_s"].values(), *v.get("threaded_s", {}).values()])
+                                 for v in rates.values())] or [1])
+    ax.set_xlabel("batch size (presses per call)")
+    ax.set_ylabel("presses per second (one process)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7, ncol=len(rates), loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
+    first = next(iter(rates.values()))
+    m = res.get("machine", {})
+    where = "the GPU" if _on_gpu(res) else f"{m.get('cpu_model', 'the CPU')}, {m.get('cores', '?')} cores"
+    ax.set_title(f"Simulator, {first.get('loading', '')} presses ({first.get('steps', '?')} path steps) on {where}",
+                 fontsize=9)
+    fig.text(0.995, 0.005, f"ffjax bench · commit {str(res.get('commit', '?'))[:7]}", ha="right", va="bottom",
+             fontsize=7, color="0.35")
+    fig.tight_layout()
+    path = Path(out) / "sim_speed.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return str(path)

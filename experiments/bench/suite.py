@@ -367,6 +367,7 @@ def run_only(part: str, mode: str | dict, out: str | Path | None = None, log=pri
                 res["bf16_methods"] = bf16_methods(plan, src)
     res["ratios"] = ratios(res)
     res["wall_s"], res["load_end"] = time.perf_counter() - t_start, list(os.getloadavg())
+    res["plots"] = bench_report.plots(res, out)
     write_json(out / "results.json", res)
     write_text(out / "report.md", bench_report.only_report(res))
     log(f"[bench] wrote {out}/results.json and report.md in {res['wall_s']:.0f}s")
