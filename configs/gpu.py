@@ -5,8 +5,9 @@ Sized for <= 10 min of the whole ablation on one H100-class GPU, from the issue'
 step costs about the same at batch 256, so ~6,000 steps per method see ~1.5 M samples (~130 epochs of the
 12,000 training presses; the earlier GPU runs' 150 epochs at batch 64 saw 0.9 M). Not yet run on a GPU by
 this project: the tables in README come from quick and full. Measured since on one H200 (jax 0.11.2,
-`experiments.bench --quick --device gpu --only loop` at 15bd518): the quick ViT's step 2.1-2.5 ms at batch 64,
-the training loop 5.2 ms per step validating every 5th epoch and 10.2 ms validating every epoch.
+`experiments.bench --quick --device gpu --only loop`): the quick ViT's step 2.1-2.5 ms at batch 64, the training
+loop 5.2 ms per step validating every 5th epoch and 10.2 ms validating every epoch (15bd518); 2.5-3.2, 8.3 and
+8.7 ms in a second run (d6bb2a3).
 """
 
 from configs.checks import derive
