@@ -36,11 +36,21 @@ Left out, on purpose:
 - Partial slip: the contact either sticks or fully slides (Coulomb cap); no stick-slip annulus.
 """
 
-from ffjax.sim.press import Sample, benchmark, body_heights, press, press_batch, press_many
+from ffjax.sim.press import (
+    Sample,
+    benchmark,
+    body_heights,
+    mechanics_key,
+    press,
+    press_batch,
+    press_many,
+    press_many_seen,
+)
 from ffjax.sim.sensors import GELS, LED, SENSOR_NAMES, SENSORS, Gel, Sensor, get_sensor
 from ffjax.sim.shapes import INDENTERS, UNSEEN_OBJECTS, Shape, get_shape
 
 __all__ = [
     "GELS", "INDENTERS", "LED", "SENSORS", "SENSOR_NAMES", "UNSEEN_OBJECTS", "Gel", "Sample", "Sensor", "Shape",
-    "benchmark", "body_heights", "get_sensor", "get_shape", "press", "press_batch", "press_many",
+    "benchmark", "body_heights", "get_sensor", "get_shape", "mechanics_key", "press", "press_batch", "press_many",
+    "press_many_seen",
 ]

@@ -150,9 +150,35 @@ def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds,
     path "shear": pressed to Fz, then the requested (Fx, Fy) applied in stick. path "oblique": the paper's
     press, the tool moved along its tilted axis until the gel carries Fz, the shear coming from the path
     (`mechanics.oblique_batch` in `steps` increments; request (0, 0, Fz), the tilt sets the push)."""
+    sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
+    return press_many_seen(shapes, (sensor,), forces, xs, ys, yaws, tilts, seeds, size, noise, reference, path,
+                           steps)[0]
+
+
+def mechanics_key(sensor: Sensor) -> tuple:
+    """What a press's solve reads of a sensor (the pad's geometry and the gel's mechanics): sensors with equal keys
+    solve every press alike and differ only in how they see it (LEDs, camera, pigment, markers)."""
+    g = sensor.gel
+    return (tuple(sensor.native_size), sensor.native_mm_per_px, sensor.dome_radius_mm, g.young_mpa, g.shear_mpa,
+            g.thickness_mm, g.friction)
+
+
+def press_many_seen(shapes, sensors, forces, xs, ys, yaws, tilts, seeds, size: tuple[int, int] | None = None,
+                    noise: bool = True, reference: bool = False, path: str = "shear",
+                    steps: int = mechanics.PATH_STEPS) -> list[list]:
+    """`press_many` solved once and rendered as each of `sensors` sees it: one list of Samples (or ValueErrors) per
+    sensor, each the very list press_many would give for that sensor. The sensors must share `mechanics_key` (a
+    robustness sweep's lighting, camera noise or pigment levels of one gel); the first one's solve serves all."""
+    views = [get_sensor(s) if isinstance(s, str) else s for s in sensors]
+    if not views:
+        raise ValueError("press_many_seen needs at least one sensor")
+    sensor = views[0]
+    for v in views[1:]:
+        if mechanics_key(v) != mechanics_key(sensor):
+            raise ValueError(f"press_many_seen: {v.key} solves presses differently from {sensor.key} (pad or gel "
+                             f"mechanics {mechanics_key(v)} vs {mechanics_key(sensor)}); press them apart")
     if path not in PATHS:
         raise ValueError(f"path must be one of {PATHS}, got {path!r}")
-    sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
     size = render_size_of(sensor, size)
     shapes = [get_shape(s) if isinstance(s, str) else s for s in shapes]
     if len({len(shapes), len(forces), len(xs), len(ys), len(yaws), len(tilts), len(seeds)}) != 1:
@@ -172,7 +198,7 @@ def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds,
         except ValueError as e:
             out[i] = e
     if not reqs:
-        return out
+        return [list(out) for _ in views]
     # similar presses side by side: a batch runs until its slowest press converges, and the same body at a
     # similar force takes a similar number of iterations (results do not depend on the order)
     reqs = dict(sorted(reqs.items(), key=lambda kv: (kv[1].shape.name, float(kv[1].force[2]))))
@@ -191,7 +217,7 @@ def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds,
         else:
             ok.append((reqs[i], nrm, i, k))
     if not ok:
-        return out
+        return [list(out) for _ in views]
     if path == "oblique":
         shears = [by_path[k] for *_, k in ok]
     else:
@@ -199,9 +225,13 @@ def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds,
                                        np.stack([n.contact for _, n, *_ in ok]), mpp_s, gel.shear_mpa,
                                        gel.thickness_mm, gel.friction, reference,
                                        [mechanics.hold_depth(n, gel.thickness_mm) for _, n, *_ in ok])
-    for (req, nrm, i, _), sh in zip(ok, shears):
-        out[i] = _sample(req, sensor, size, nrm, sh, noise, path)
-    return out
+    seen = []
+    for view in views:
+        frames = list(out)
+        for (req, nrm, i, _), sh in zip(ok, shears):
+            frames[i] = _sample(req, view, size, nrm, sh, noise, path)
+        seen.append(frames)
+    return seen
 
 
 def _sample(req: _Request, sensor: Sensor, size: tuple[int, int], normal, sh, noise: bool, path: str) -> Sample:
