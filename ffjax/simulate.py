@@ -40,7 +40,7 @@ def main(argv=None) -> int:
         # dataset.generate keeps a caller on a GPU to one process (its jax may hold most of the GPU's memory); here
         # nothing else holds it, and a press's optics and files, on the CPU, cost as much as its solves on the
         # GPU: on one H200 the quick dataset took 114 s in one process, 47 s with 4 workers and 36 s with 8
-        args.workers = min(os.cpu_count() or 1, 8)
+        args.workers = dataset.cpu_workers()
     m = dataset.generate(cfg, args.out, force=args.force, workers=args.workers, progress=not args.quiet)
     gen = m["generation"]
     print(f"{args.out}: {len(m['splits'])} splits, {gen['samples']} presses "

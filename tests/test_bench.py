@@ -130,7 +130,7 @@ def test_a_made_datasets_time_is_read_only_when_its_call_is_the_measurement(tmp_
     n = sum(s.count for s in dataset.split_specs(cfg))
     good = {"preset": "smoke", "sim_fingerprint": dataset.sim_fingerprint(), "data_config": cfg["data"],
             "generation": {"samples": n, "rendered": n, "seconds": 12.5,
-                           "workers": dataset.default_workers(n, 2000)}}
+                           "workers": dataset.default_workers(n)}}
 
     def made(**change):
         m = json.loads(json.dumps(good))

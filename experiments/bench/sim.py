@@ -183,7 +183,7 @@ def made_time(folder, preset: str) -> dict | None:
     same = (m.get("preset") == preset and m.get("sim_fingerprint") == dataset.sim_fingerprint()
             and m.get("data_config") == json.loads(json.dumps(cfg["data"]))
             and gen["rendered"] == gen["samples"] == sum(s.count for s in dataset.split_specs(cfg))
-            and gen["workers"] == dataset.default_workers(gen["samples"], 2000))
+            and gen["workers"] == dataset.default_workers(gen["samples"]))
     if not same:
         return None
     return {"preset": preset, "overrides": {}, "presses": gen["samples"], "workers": gen["workers"],

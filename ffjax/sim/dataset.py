@@ -345,10 +345,19 @@ def _prepare(out: Path, g: dict, force: bool) -> None:
     _write_text(cfg_file, json.dumps(g, indent=1))
 
 
-def default_workers(presses: int, at_least: int) -> int:
-    """Processes to simulate `presses` in: the CPU count (up to 8) from `at_least` presses on; one below it, and
-    one on a GPU, which runs a whole batch at once and would give each process most of its memory."""
-    return 1 if presses < at_least or batched.on_accelerator() else min(os.cpu_count() or 1, 8)
+WORKERS_FROM = 2000  # presses: starting processes costs ~2 s, not worth it for fewer
+MAX_WORKERS = 8
+
+
+def cpu_workers() -> int:
+    """Worker processes a CPU gives a whole dataset: one per core, up to MAX_WORKERS."""
+    return min(os.cpu_count() or 1, MAX_WORKERS)
+
+
+def default_workers(presses: int, at_least: int = WORKERS_FROM) -> int:
+    """Processes to simulate `presses` in: cpu_workers() from `at_least` presses on; one below it, and one on a
+    GPU, which runs a whole batch at once and would give each process most of its memory."""
+    return 1 if presses < at_least or batched.on_accelerator() else cpu_workers()
 
 
 def generate(cfg: dict, out, force: bool = False, workers: int | None = None, progress: bool = True) -> dict:
@@ -406,8 +415,8 @@ def _generate(cfg: dict, out: Path, force: bool, workers: int | None, progress: 
     if manifest_file.is_file():
         manifest_file.unlink()  # incomplete again until every shard is back
     todo_n = sum(t[3] for t in tasks)
-    if workers is None:  # starting processes costs ~2 s: not worth it for a few thousand presses
-        workers = default_workers(todo_n, 2000)
+    if workers is None:
+        workers = default_workers(todo_n)
     workers = max(1, min(workers, len(tasks)))
     t0 = time.perf_counter()
     with tqdm(total=total, initial=total - todo_n, unit="press", desc=f"dataset {out.name}",
