@@ -220,25 +220,48 @@ def loading(cfg: dict, f: Factor) -> str:
     return "shear" if f.name in PUSHED else cfg["data"]["loading"]
 
 
-def render(cfg: dict, f: Factor, li: int, n: int) -> dict:
-    """One test set: images (N,H,W,3), its background, the applied forces; presses the simulator refuses
-    (e.g. beyond what the gel takes) are dropped and counted."""
+def render_sets(cfg: dict, jobs, n: int, progress: bool = False) -> dict:
+    """{(factor name, level index): test set} for each (Factor, level index) in `jobs`. A test set: images
+    (N,H,W,3), its background, the applied forces; presses the simulator refuses (e.g. beyond what the gel takes)
+    are dropped and counted. Levels with the very same presses on the same gel (the camera, lighting, pigment and
+    marker levels, and the background drift's) are solved once and rendered as each level's sensor sees them
+    (`sim.press_many_seen`): the same frames as pressing each level on its own."""
+    from tqdm import tqdm
+
     from ffjax import sim
     from ffjax.sim import dataset
 
     nominal = dataset.sensor_of(cfg["data"]["train_sensor"], cfg["data"])
     size = dataset.render_size(nominal, cfg["data"]["render_size"])
-    frame_sensor, bg_sensor = sensors_for(f.name, f.levels[li], nominal)
-    p = presses(cfg, f, li, n, nominal)
-    done = sim.press_many([p["shapes"][k] for k in p["shape_index"]], frame_sensor, p["force"], p["x_mm"],
-                          p["y_mm"], p["yaw_deg"], p["tilt_deg"], [int(v) for v in p["seed"]], size,
-                          path=loading(cfg, f), steps=int(cfg["data"]["path_steps"]))
-    kept = [s for s in done if not isinstance(s, ValueError)]
-    images, forces, dropped = [s.image for s in kept], [s.force for s in kept], len(done) - len(kept)
+    groups: dict = {}  # what a solve reads -> [(job, presses, frame sensor, background sensor)]
+    for f, li in jobs:
+        frame_sensor, bg_sensor = sensors_for(f.name, f.levels[li], nominal)
+        p = presses(cfg, f, li, n, nominal)
+        bodies = tuple(p["shapes"][k] for k in p["shape_index"])
+        key = (tuple(b if isinstance(b, str) else id(b) for b in bodies), loading(cfg, f),
+               sim.mechanics_key(frame_sensor),
+               *(np.asarray(p[k]).tobytes() for k in ("force", "x_mm", "y_mm", "yaw_deg", "tilt_deg", "seed")))
+        groups.setdefault(key, []).append(((f.name, li), p, bodies, frame_sensor, bg_sensor, loading(cfg, f)))
     H, W = size
-    return {"image": np.stack(images) if images else np.zeros((0, H, W, 3), np.uint8),
-            "force": np.stack(forces) if forces else np.zeros((0, 3), np.float32),
-            "background": bg_sensor.background(size), "dropped": dropped}
+    sets = {}
+    with tqdm(total=len(jobs), desc="render test sets", disable=not progress) as bar:
+        for members in groups.values():
+            _, p, bodies, _, _, path = members[0]
+            views = []  # the group's distinct frame sensors (the drift levels all share the nominal one)
+            for m in members:
+                if m[3] not in views:
+                    views.append(m[3])
+            seen = sim.press_many_seen(bodies, views, p["force"], p["x_mm"], p["y_mm"], p["yaw_deg"], p["tilt_deg"],
+                                       [int(v) for v in p["seed"]], size, path=path,
+                                       steps=int(cfg["data"]["path_steps"]))
+            for job, _, _, frame_sensor, bg_sensor, _ in members:
+                done = seen[views.index(frame_sensor)]
+                kept = [s for s in done if not isinstance(s, ValueError)]
+                sets[job] = {"image": np.stack([s.image for s in kept]) if kept else np.zeros((0, H, W, 3), np.uint8),
+                             "force": np.stack([s.force for s in kept]) if kept else np.zeros((0, 3), np.float32),
+                             "background": bg_sensor.background(size), "dropped": len(done) - len(kept)}
+                bar.update()
+    return sets
 
 
 def doubles_at(levels, errors, ref: int = 0, factor: float = 2.0):
@@ -369,9 +392,8 @@ def run(cfg, methods, chosen, per_level, ablation_dir, out, data_dir=None, force
     ckpts, evals, timings, seeds = checkpoints(cfg, methods, Path(ablation_dir), data_dir, force, progress)
     t = time.perf_counter()
     jobs = [(f, li) for f in chosen for li in range(len(f.levels))]
-    sets = {f.name: [None] * len(f.levels) for f in chosen}
-    for f, li in tqdm(jobs, desc="render test sets", disable=not progress):
-        sets[f.name][li] = render(cfg, f, li, per_level)
+    rendered = render_sets(cfg, jobs, per_level, progress)
+    sets = {f.name: [rendered[f.name, li] for li in range(len(f.levels))] for f in chosen}
     timings["render_s"] = round(time.perf_counter() - t, 1)
     t = time.perf_counter()
     scored = {m: [score_run(d, sets) for d in ckpts[m]] for m in tqdm(methods, desc="score", disable=not progress)}
@@ -494,16 +516,17 @@ def summary(results: dict) -> str:
     lines = []
     for fn, e in results["factors"].items():
         ref = e["levels"][e["ref"]]
+        si = strongest(e)
         parts = []
         for m, v in e["methods"].items():
-            top = f"{v['nl1'][strongest(e)]:.1f}% at {e['levels'][strongest(e)]:g}"
+            top = f"{v['nl1'][si]:.1f}% at {e['levels'][si]:g}"
             dbl = f"doubles at {v['doubles_at']:.3g}" if v["doubles_at"] is not None else "does not double"
             parts.append(f"{_name(m)} {v['nl1'][e['ref']]:.1f}% -> {top} ({dbl})")
         first = results["breaks_first"].get(fn)
         line = f"- **{fn}** ({e['label']}; nominal {ref:g}): " + "; ".join(parts) + "."
         if first and len(e["methods"]) > 1:
             line += f" Breaks first: **{_name(first)}** ({_traits(first, results)})."
-            best = lowest_at(e, strongest(e))
+            best = lowest_at(e, si)
             if best:
                 line += (f" Lowest error at the strongest level: {_name(best)} (\"breaks first\" is relative to each "
                          f"method's own nominal error, so a method that starts low can break first and still be best)."
@@ -572,20 +595,95 @@ def write_all(results: dict, out: Path) -> None:
 
 
 _LINES = ("-", "--", ":", "-.")
+# The level names of the categorical factors (a level is a kind, not an amount: drawn as points at categorical
+# positions, no line between them). A factor whose label lists "k: name" for each of its levels is read from there.
+CATEGORIES = {"markers": {0.0: "none", 1.0: "markers"},
+              "pigment": {0.0: "own", 1.0: "another gel's", 2.0: "frozen"}}
+_DODGE = 0.09  # categorical: the methods' points side by side around each level's position
+_NEAR = 0.25  # a 2x-nominal line this close to the curves (as a fraction of their span) widens the axis to show it
 
 
-def _curve(ax, e: dict, m: str, k: int, color, label: str, multi_seed: bool) -> None:
+def _categories(fn: str, e: dict) -> tuple[str, ...] | None:
+    """The names of a categorical factor's levels, in order; None for a numeric factor."""
+    import re
+
+    names = CATEGORIES.get(fn) or {float(k): v.strip() for k, v in re.findall(r"(\d+): ([^,)]+)", e["label"])}
+    return tuple(names[lv] for lv in e["levels"]) if names and all(lv in names for lv in e["levels"]) else None
+
+
+def _axis_label(label: str, categorical: bool) -> str:
+    """The factor's label, less its "(0: ..., 1: ...)" code list where the ticks name the levels."""
+    import re
+
+    return re.sub(r"\s*\(\d+:[^)]*\)", "", label).strip() if categorical else label
+
+
+def _span(e: dict, multi_seed: bool) -> tuple[float, float]:
+    """The lowest and highest point of the factor's curves, error bars included (with >= 2 seeds)."""
+    vals = []
+    for v in e["methods"].values():
+        y = np.asarray(v["nl1"], float)
+        s = np.nan_to_num(np.asarray(v["std"], float)) if multi_seed else 0.0
+        vals += [y - s, y + s]
+    vals = np.concatenate(vals)
+    vals = vals[np.isfinite(vals)]
+    return (float(vals.min()), float(vals.max())) if vals.size else (0.0, 1.0)
+
+
+def _curve(ax, e: dict, m: str, k: int, n: int, color, label: str, multi_seed: bool, cats) -> None:
+    """Method m's error at each level (k of n methods): a line over a numeric factor, points side by side at each
+    level's position for a categorical one (cats: the level names). 'x' where the error doubles."""
     v = e["methods"][m]
-    x = e["levels"]
+    thr = 2 * v["nl1"][e["ref"]]
     # the method's own marker, and a line style per position: equal curves (DINO_F R and DINO_F RD) stay
     # visible on each other
-    ax.errorbar(x, v["nl1"], yerr=v["std"] if multi_seed else None, fmt=style.marker(m),
-                ls=_LINES[k % len(_LINES)], color=color, capsize=2 if multi_seed else 0, ms=5 - 0.5 * (k % 3),
-                mfc="none" if k % 2 else color, label=label)
-    ax.axhline(2 * v["nl1"][e["ref"]], color=color, ls=":", lw=0.8)
-    if v["doubles_at"] is not None:
-        ax.axvline(v["doubles_at"], color=color, ls="--", lw=0.8)
-        ax.plot([v["doubles_at"]], [2 * v["nl1"][e["ref"]]], marker="x", color=color, ms=8)
+    kw = dict(yerr=v["std"] if multi_seed else None, fmt=style.marker(m), color=color,
+              capsize=2 if multi_seed else 0, ms=5 - 0.5 * (k % 3), mfc="none" if k % 2 else color, label=label)
+    if cats is None:
+        ax.errorbar(e["levels"], v["nl1"], ls=_LINES[k % len(_LINES)], **kw)
+        if v["doubles_at"] is not None:
+            ax.axvline(v["doubles_at"], color=color, ls="--", lw=0.8)
+            ax.plot([v["doubles_at"]], [thr], marker="x", color=color, ms=8)
+        return
+    x = np.arange(len(e["levels"])) + (k - (n - 1) / 2) * _DODGE
+    ax.errorbar(x, v["nl1"], ls="none", **kw)
+    # no interpolation between kinds: the 'x' sits on the level nearest the nominal one that reaches 2x
+    hit = [i for i, y in enumerate(v["nl1"]) if i != e["ref"] and np.isfinite(y) and y >= thr]
+    if v["doubles_at"] is not None and hit:
+        i = min(hit, key=lambda i: (abs(i - e["ref"]), -i))
+        ax.plot([x[i]], [thr], marker="x", color=color, ms=8)
+
+
+def _thresholds(ax, e: dict, colors: dict, multi_seed: bool) -> None:
+    """Each method's 2x-nominal line where it falls within (or near) the curves' range; the y axis fits the curves
+    and those lines, and a threshold beyond it is named in a note with an arrow at the top (bottom) instead."""
+    lo, hi = _span(e, multi_seed)
+    d = hi - lo if hi > lo else max(abs(hi), 1.0) * 0.1
+    off: dict = {}  # (rounded threshold, 'above'/'below') -> methods
+    for m, v in e["methods"].items():
+        thr = 2 * v["nl1"][e["ref"]]
+        if not np.isfinite(thr):
+            continue
+        if lo - _NEAR * d <= thr <= hi + _NEAR * d:
+            ax.axhline(thr, color=colors[m], ls=":", lw=0.8)
+        else:
+            off.setdefault((round(thr, 1), "above" if thr > hi else "below"), []).append(m)
+    shown = [2 * v["nl1"][e["ref"]] for v in e["methods"].values()]
+    shown = [t for t in shown if np.isfinite(t) and lo - _NEAR * d <= t <= hi + _NEAR * d]
+    lo, hi = min([lo, *shown]), max([hi, *shown])
+    d = hi - lo if hi > lo else d
+    above = sorted((k for k in off if k[1] == "above"), reverse=True)
+    below = sorted(k for k in off if k[1] == "below")
+    line = 0.075  # one note's height, a fraction of the axes
+    top, bottom = ((0.02 + line * len(rows)) if rows else 0.0 for rows in (above, below))  # the notes' room
+    inner = (hi - lo + 0.1 * d) / (1 - top - bottom)
+    ax.set_ylim(lo - 0.05 * d - bottom * inner, hi + 0.05 * d + top * inner)
+    for rows, y0, step, arrow, va in ((above, 0.985, -line, "\u2191", "top"), (below, 0.015, line, "\u2193", "bottom")):
+        for j, key in enumerate(rows):
+            ms = off[key]
+            ax.text(0.99, y0 + j * step, f"{arrow} 2x nominal off the axis: {key[0]:.1f}% "
+                    f"({', '.join(_name(m) for m in ms)})", transform=ax.transAxes, ha="right", va=va,
+                    fontsize=7, color=colors[ms[-1]], bbox=dict(fc="white", ec="none", alpha=0.8, pad=1))
 
 
 def _labels(e: dict) -> dict:
@@ -619,11 +717,17 @@ def plot(results: dict, out: Path) -> list[Path]:
 
     def draw(ax, fn, e):
         labels = _labels(e)
+        cats = _categories(fn, e)
         for k, m in enumerate(e["methods"]):
-            _curve(ax, e, m, k, colors[m], labels[m], multi_seed)
+            _curve(ax, e, m, k, len(e["methods"]), colors[m], labels[m], multi_seed, cats)
+        _thresholds(ax, e, colors, multi_seed)
         if fn == "force":
             ax.axvspan(fz_max, max(e["levels"]) + fz_max / 6, color="0.9", zorder=0, label="beyond training")
-        ax.set_xlabel(e["label"], fontsize=8)
+        if cats is not None:
+            ax.set_xticks(range(len(cats)))
+            ax.set_xticklabels(cats, fontsize=8)
+            ax.set_xlim(-0.5, len(cats) - 0.5)
+        ax.set_xlabel(_axis_label(e["label"], cats is not None), fontsize=8)
         ax.set_ylabel("normalized L1 error (%)", fontsize=8)
         ax.set_title(f"{fn.replace('_', ' ')} (x: error doubles; dotted: 2x nominal)", fontsize=9)
 

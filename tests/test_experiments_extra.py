@@ -113,3 +113,38 @@ def test_pigment_factor_keeps_the_mechanics():
     total = lambda s: s.gel.pigment ** 2 + s.pixel_pattern ** 2  # noqa: E731
     assert abs(total(frozen) - total(nominal)) < 1e-12
     assert dataclasses.replace(other, gel=nominal.gel) == nominal  # the camera side is the training sensor's
+
+
+def test_stability_solves_levels_that_share_presses_once_with_the_same_frames(monkeypatch):
+    """The camera, lighting, pigment, marker and drift levels press the very same presses on one gel: render_sets
+    solves them once (press_many_seen) and gives each level the frames pressing it alone gives."""
+    import numpy as np
+
+    import configs
+    from ffjax import sim
+    from ffjax.sim import dataset
+
+    cfg = configs.get("smoke")
+    chosen = {f.name: f for f in stability.factors(cfg)}
+    jobs = [(chosen[n], li) for n, li in (("noise", 0), ("noise", 5), ("drift", 0), ("drift", 5), ("pigment", 1),
+                                         ("markers", 1), ("edge", 3))]
+    calls = []
+    seen = sim.press_many_seen
+    monkeypatch.setattr(sim, "press_many_seen", lambda *a, **k: calls.append(len(a[1])) or seen(*a, **k))
+    sets = stability.render_sets(cfg, jobs, 4)
+    assert sorted(calls) == [1, 4]  # edge's poses on their own; the rest one solve seen by 4 distinct sensors
+    nominal = dataset.sensor_of(cfg["data"]["train_sensor"], cfg["data"])
+    size = dataset.render_size(nominal, cfg["data"]["render_size"])
+    for f, li in jobs:
+        frame, background = stability.sensors_for(f.name, f.levels[li], nominal)
+        p = stability.presses(cfg, f, li, 4, nominal)
+        alone = sim.press_many([p["shapes"][k] for k in p["shape_index"]], frame, p["force"], p["x_mm"], p["y_mm"],
+                               p["yaw_deg"], p["tilt_deg"], [int(v) for v in p["seed"]], size,
+                               path=stability.loading(cfg, f), steps=int(cfg["data"]["path_steps"]))
+        got = sets[f.name, li]
+        np.testing.assert_array_equal(got["image"], np.stack([s.image for s in alone]))
+        np.testing.assert_array_equal(got["force"], np.stack([s.force for s in alone]))
+        np.testing.assert_array_equal(got["background"], background.background(size))
+    mini2 = sim.get_sensor("mini-3-gel2")
+    with pytest.raises(ValueError, match="solves presses differently"):
+        sim.press_many_seen(["sphere_small"], [nominal, mini2], [(0, 0, 1.0)], [0], [0], [0], [(0, 0)], [0], size)
