@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments import common, style
+from experiments import common, style, tables
 from ffjax.tasks import grasping, pushing
 
 PERFECT = "perfect"
@@ -36,12 +36,42 @@ def _v(ms) -> float:
     return ms["mean"] if isinstance(ms, dict) else float(ms)
 
 
-def stamp(fig, res: dict) -> None:
-    """The figure's provenance in its corner (preset, the checkpoints' training seeds, commit): see
-    ffjax.common.stamp."""
-    seeds = sorted({int(m.group(1)) for runs in res.get("checkpoints", {}).values() for r in runs
-                    if (m := re.search(r"seed(\d+)$", str(r)))})
-    common.stamp(fig, res.get("preset", "?"), seeds or ["?"], res.get("commit", "?"))
+def _seed(run) -> int | None:
+    """The training seed a checkpoint's folder names (.../dino_rd/seed0), None where it names none."""
+    m = re.search(r"seed(\d+)$", str(run).rstrip("/"))
+    return int(m.group(1)) if m else None
+
+
+def first_checkpoint(res: dict, method: str) -> str:
+    """Which checkpoint a one-checkpoint figure shows (the method's first, as experiments.downstream uses), in
+    words: 'one DINO RD checkpoint (seed 0)', or its folder's name where that names no seed."""
+    runs = res.get("checkpoints", {}).get(method) or []
+    if not runs:
+        return f"one {_name(method)} checkpoint"
+    seed = _seed(runs[0])
+    return f"one {_name(method)} checkpoint ({f'seed {seed}' if seed is not None else Path(runs[0]).name})"
+
+
+def _over_seeds(res: dict, methods) -> str:
+    """What the figure's means are over: 'mean ± std over seeds 0-2' where every method's checkpoints have those
+    seeds, 'seed 0, no spread' for one seed each."""
+    spans = set()
+    for m in methods:
+        seeds = [_seed(r) for r in res.get("checkpoints", {}).get(m, [])]
+        spans.add(tables.seed_span(seeds) if seeds and None not in seeds else None)
+    if len(spans) != 1 or None in spans:
+        return "mean ± std over each method's checkpoints"
+    span = spans.pop()
+    return f"seed {span}, no spread" if span.isdigit() else f"mean ± std over seeds {span}"
+
+
+def stamp(fig, res: dict, runs=None) -> None:
+    """The figure's provenance in its corner (preset, the training seeds of its checkpoints: `runs`, default every
+    checkpoint; commit): see ffjax.results.stamp."""
+    if runs is None:
+        runs = [r for rs in res.get("checkpoints", {}).values() for r in rs]
+    seeds = [s for s in map(_seed, runs) if s is not None]
+    tables.stamp(fig, res.get("preset", "?"), tables.seed_span(seeds) if seeds else "?", res.get("commit", "?"))
 
 
 def table4_md(res: dict) -> str:
@@ -316,11 +346,11 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
         ax.set(
             xlabel="time [s]",
             ylabel="Fz = push force [N]",
-            title=f"One push of {tr['object']} ({t_end + float(np.diff(tr['t'][:2])[0]):.0f} s simulated, one "
-                  f"{_name(tr['method'])} checkpoint)",
+            title=f"One push of {tr['object']} ({t_end + float(np.diff(tr['t'][:2])[0]):.0f} s simulated), "
+                  f"{first_checkpoint(res, tr['method'])}",
         )
         fig.legend(fontsize=7, loc="outside right center")
-        stamp(fig, res)
+        stamp(fig, res, res.get("checkpoints", {}).get(tr["method"], [])[:1])
         fig.savefig(out / "push_force.png", dpi=120)
         plt.close(fig)
         made.append("push_force.png")
@@ -345,7 +375,7 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
                     color=style.colour(m), marker=style.marker(m), ls="--" if twin != m else "-", capsize=2.5,
                     mfc="white" if twin != m else style.colour(m), label=label)
     ax.set(xlabel="push duration [s]", ylabel="mean weight error, four objects [%]")
-    fig.suptitle(f"Weighing error against push duration ({res.get('preset', '?')} models; mean ± std over seeds)",
+    fig.suptitle(f"Weighing error against push duration ({res.get('preset', '?')} models; {_over_seeds(res, methods)})",
                  fontsize=11)
     fig.legend(fontsize=7, loc="outside right center")
     stamp(fig, res)
@@ -362,15 +392,14 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
         a1.plot(tr["steps"], tr["est_b"], "s--", color=colour, ms=3, mfc="white",
                 label=f"estimate, jaw B ({names[1]})")
         a1.axhline(tr["target"], color="0.3", ls="-.", lw=0.9, label="target")
-        a1.axvline(tr["stop_true"], color="k", ls=":", lw=0.8)
-        a1.axvline(tr["stop_est"], color=colour, ls=":", lw=0.8)
+        a1.axvline(tr["stop_true"], color="k", ls=":", lw=0.8, label="stop, control by the true force")
+        a1.axvline(tr["stop_est"], color=colour, ls=":", lw=0.8, label="stop, control by the estimate")
         a1.set(ylabel="Fz [N]")
-        fig.suptitle(f"Closing on the cup rim, one {_name(res['main_method'])} checkpoint (dotted: where control "
-                     "by the true / the estimated force stops)", fontsize=10)
+        fig.suptitle(f"Closing on the cup rim, {first_checkpoint(res, res['main_method'])}", fontsize=10)
         fig.legend(fontsize=7, loc="outside right center")
         a2.plot(tr["steps"], tr["deformation_pct"], "k.-")
         a2.set(xlabel="gripper step", ylabel="deformation [%]")
-        stamp(fig, res)
+        stamp(fig, res, res.get("checkpoints", {}).get(res["main_method"], [])[:1])
         fig.savefig(out / "grasp_steps.png", dpi=120)
         plt.close(fig)
         made.append("grasp_steps.png")

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from experiments import aggregate, common, kernel, style
+from experiments import aggregate, common, kernel, style, tables
 from ffjax import registry
 
 # name: (backbone kind, overrides of cfg["model"][kind]); {} = the preset's own model. All patch 8.
@@ -355,13 +355,13 @@ def markdown(results: dict) -> str:
     m = results["machine"]
     sizes = ", ".join(f"{s} = {k} {v or '(preset)'}" for s, (k, v) in results["sizes"].items())
     lines = [f"# Speed against accuracy ({results['preset']} preset, commit {_short(results['commit'])})\n",
-             f"Seeds {results['seeds']} per cell, and every further seed of a cell the ablation trained (the seeds "
-             f"column); grid {results['grid']}; sizes: {sizes}.",
+             f"Seeds: {seeds_said(results, names=True)}; each cell's count in the seeds column. Grid "
+             f"{results['grid']}; sizes: {sizes}.",
              f"Overrides of the preset: {', '.join(results.get('overrides') or []) or 'none'}.",
              f"Machine: {m['cpu_model']}, {m['cores']} cores; load average {_la(m['loadavg_before'])} before and "
              f"{_la(m['loadavg_after'])} after timing; steal {m['steal']['steal']:.1%}, busy {m['steal']['busy']:.1%} "
              "during it. Compare only within this run.\n"]
-    shown = {r["label"]: f"{style.name(r['method'])} {r['size']}" for r in results["cells"]}  # names people read
+    shown = {r["label"]: _shown(r) for r in results["cells"]}  # names people read
     rows = []
     for r in results["cells"]:
         rows.append([shown[r["label"]], len(r.get("seeds", results["seeds"])), f"{r['params_total']:,}",
@@ -375,6 +375,108 @@ def markdown(results: dict) -> str:
         lines.append(f"- {title}: {', '.join(shown.get(c, c) for c in results['fronts'][key])}")
     lines.append("\n" + results["notes"])
     return "\n".join(lines) + "\n"
+
+
+def _shown(r: dict) -> str:
+    """A cell's name people read: 'DINO RD vit-s'."""
+    return f"{style.name(r['method'])} {r['size']}"
+
+
+def seeds_said(results: dict, names: bool = False) -> str:
+    """The cells' seeds in words, from what each cell records (its seeds, and which of its runs the ablation's):
+    e.g. "0 for the cells trained here; 0-2 for the cells reused from the ablation" (names: the cells of each
+    group in brackets). A results.json without `reused_ablation_runs`: a cell with seeds beyond the run's own
+    (`seeds`) has them from the ablation."""
+    own = {int(k) for k in results.get("seeds", [])}
+    known = "reused_ablation_runs" in results
+    reused_runs = set(results.get("reused_ablation_runs") or [])
+    cells = {}
+    for r in results["cells"]:
+        seeds = [int(k) for k in r.get("seeds", sorted(own))]
+        if known:
+            flags = [d in reused_runs for d in r.get("runs", [])]
+            reused = True if flags and all(flags) else False if not any(flags) else None
+        else:
+            reused = bool(set(seeds) - own)
+        cells[_shown(r)] = (seeds, reused)
+    return tables.seeds_text(cells, here="the cells trained here", names=", ".join if names else None)
+
+
+# Point labels: the text's size, a gap to its marker, and the offsets tried (in points, times the marker's radius
+# plus the gap): right, left, the four diagonals, above, below; then the same farther out (_RINGS), with a leader
+# line.
+LABEL_FONT = 7
+LABEL_GAP = 2.0
+_DIRECTIONS = (("left", "center", 1, 0), ("right", "center", -1, 0), ("left", "bottom", 0.8, 0.8),
+               ("left", "top", 0.8, -0.8), ("right", "bottom", -0.8, 0.8), ("right", "top", -0.8, -0.8),
+               ("center", "bottom", 0, 1), ("center", "top", 0, -1))  # diagonals: the corner clears the marker
+_RINGS = (1.0, 2.2, 3.4)
+
+
+def _overlap(a, b) -> float:
+    """Area shared by two boxes (x0, y0, x1, y1)."""
+    return max(0.0, min(a[2], b[2]) - max(a[0], b[0])) * max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+
+
+def place_labels(ax, points, texts, radii, obstacles, renderer) -> list:
+    """Label points (data coordinates) where the labels miss each other, every marker and line and stay inside the
+    axes: each label takes the cheapest of the offsets in _DIRECTIONS, sized by the renderer's text extents; the
+    most crowded points choose first. obstacles: boxes (x0, y0, x1, y1) in display pixels, a line's at most 3 px
+    across, a marker's more. radii: each point's marker radius in points. Call after the figure's layout and the
+    axes' limits are final. Returns the annotations."""
+    import matplotlib.patheffects as pe
+
+    px_per_pt = ax.figure.dpi / 72.0
+    inner = ax.get_window_extent(renderer).padded(-2)
+    frame = (inner.x0, inner.y0, inner.x1, inner.y1)
+    anchors = [tuple(ax.transData.transform(p)) for p in points]
+    lines = [b for b in obstacles if min(b[2] - b[0], b[3] - b[1]) <= 3]
+    marks = [b for b in obstacles if min(b[2] - b[0], b[3] - b[1]) > 3]
+    centres = [((b[0] + b[2]) / 2, (b[1] + b[3]) / 2) for b in marks]
+    style_kw = {"textcoords": "offset points", "fontsize": LABEL_FONT, "zorder": 6,
+                "path_effects": [pe.withStroke(linewidth=2.5, foreground="white")]}  # legible over grid lines
+    sizes = []
+    for (x, y), text in zip(points, texts):  # measured, then removed: the chosen offset is drawn below
+        probe = ax.annotate(text, (x, y), xytext=(0, 0), **style_kw)
+        bb = probe.get_window_extent(renderer)
+        sizes.append((bb.width + 2, bb.height + 1))
+        probe.remove()
+
+    def candidates(i):
+        (px, py), (w, h) = anchors[i], sizes[i]
+        d = radii[i] + LABEL_GAP
+        for ring, scale in enumerate(_RINGS):
+            for ha, va, ux, uy in _DIRECTIONS:
+                ox, oy = ux * d * scale, uy * d * scale
+                x0 = px + ox * px_per_pt - {"left": 0, "right": w, "center": w / 2}[ha]
+                y0 = py + oy * px_per_pt - {"bottom": 0, "top": h, "center": h / 2}[va]
+                yield (ha, va, ox, oy, ring), (x0, y0, x0 + w, y0 + h)
+
+    def dist(box, x, y) -> float:
+        return float(np.hypot(max(box[0] - x, 0, x - box[2]), max(box[1] - y, 0, y - box[3])))
+
+    def cost(i, box, ring, placed) -> float:
+        """Outside the axes or on another label: never where avoidable; on a marker: bad; across a thin line:
+        minor. A farther ring, or an offset nearer another marker than its own (whose point would it name?),
+        costs extra."""
+        outside = (box[2] - box[0]) * (box[3] - box[1]) - _overlap(box, frame)
+        own = dist(box, *anchors[i])
+        nearer = any(dist(box, x, y) < own for x, y in centres
+                     if np.hypot(x - anchors[i][0], y - anchors[i][1]) > 0.5)
+        return (1e4 * outside + 1e3 * sum(_overlap(box, b) for b in placed) + 10 * sum(_overlap(box, b) for b in marks)
+                + 2 * sum(_overlap(box, b) for b in lines) + 300 * ring + 500 * nearer)
+
+    free = [sum(cost(i, box, c[4], []) < 1e-6 for c, box in candidates(i)) for i in range(len(points))]
+    placed, out = [], []
+    for i in sorted(range(len(points)), key=lambda i: (free[i], i)):
+        # the cheapest offset; among equals the first (near before far, right before left ...)
+        _, ((ha, va, ox, oy, ring), box) = min(enumerate(candidates(i)),
+                                              key=lambda kc: (cost(i, kc[1][1], kc[1][0][4], placed), kc[0]))
+        placed.append(box)
+        arrow = {"arrowprops": {"arrowstyle": "-", "lw": 0.5, "color": "0.4", "shrinkA": 0,
+                                "shrinkB": radii[i]}} if ring else {}  # a leader line back to the marker
+        out.append(ax.annotate(texts[i], points[i], xytext=(ox, oy), ha=ha, va=va, **style_kw, **arrow))
+    return out
 
 
 def _num(v: float) -> str:
@@ -401,6 +503,7 @@ def plot(results: dict, path: Path) -> Path:
     colours = {m: style.colour(m) for m in methods}  # the method's colour in every figure; the marker is the size
     markers = dict(zip(results["sizes"], "osD^vP*X"))
     fig, axes = plt.subplots(2, 2, figsize=(12, 9))
+    to_label = []  # per panel: the front's points and names, its markers' radii, the lines drawn (data coordinates)
     for ax, (_, y, x, x_min, title) in zip(axes.ravel(), PANELS):
         xy = _xy(rows, y, x)
         on_front = set(pareto_front(xy, (x_min, True)))
@@ -411,9 +514,14 @@ def plot(results: dict, path: Path) -> Path:
             if multi:  # the seeds' spread of the error; none drawn for one seed
                 ax.errorbar(a, b, yerr=r[y]["std"], color=colours[r["method"]], lw=1, capsize=0, zorder=2)
         front = sorted((xy[i] for i in on_front), key=lambda p: p[0])
+        lines = [[(a, b - r[y]["std"]), (a, b + r[y]["std"])] for r, (a, b) in zip(rows, xy)
+                 if r[y].get("n", 1) >= 2 and r[y].get("std")]  # the error bars
         if front:
             fx, fy = zip(*front)
             ax.step(fx, fy, where="post" if x_min else "pre", color="k", lw=1, ls="--", zorder=2)
+            for (x0, y0), (x1, y1) in zip(front, front[1:]):  # the step's corners: post moves along x first
+                corner = (x1, y0) if x_min else (x0, y1)
+                lines += [[(x0, y0), corner], [corner, (x1, y1)]]
             ax.scatter(fx, fy, s=160, facecolors="none", edgecolors="k", lw=1.2, zorder=4,
                        label="Pareto front")
         xs = [a for a, _ in xy if np.isfinite(a) and a > 0]
@@ -423,11 +531,12 @@ def plot(results: dict, path: Path) -> Path:
             ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: _num(v)))
             ax.xaxis.set_minor_formatter(NullFormatter())
         ax.margins(x=0.12, y=0.08)  # room for the labels
+        ax.autoscale_view()
+        ax.set(xlim=ax.get_xlim(), ylim=ax.get_ylim())  # fixed before the labels are placed in display space
         # only the front is labelled (all 20 labels collided into a blob; colour and marker name the others),
-        # each label placed where it misses the others
-        front_i = sorted(on_front)
-        common.place_labels(ax, [xy[i][0] for i in front_i], [xy[i][1] for i in front_i],
-                            [f"{style.name(rows[i]['method'])} {rows[i]['size']}" for i in front_i])
+        # placed once the layout is final (below)
+        radii = [(np.sqrt(160 if i in on_front else 45) / 2 + 1) for i in range(len(rows))]  # points, with the edge
+        to_label.append((ax, xy, sorted(on_front), [_shown(r) for r in rows], radii, lines))
         ax.set(title=title, xlabel=AXIS_LABELS[x], ylabel=AXIS_LABELS[y])
         ax.grid(alpha=0.3, which="both")
     handles = [plt.Line2D([], [], color=colours[m], marker="o", ls="", label=style.name(m)) for m in methods]
@@ -442,9 +551,23 @@ def plot(results: dict, path: Path) -> Path:
                fontsize=8)
     fig.suptitle(f"Speed vs accuracy — {results['preset']} preset, commit {_short(results['commit'])}, "
                  f"{results['machine']['cpu_model']} (load {_la(results['machine']['loadavg_before'])})", fontsize=10)
-    seeds = sorted({int(k) for r in rows for k in r.get("seeds", results.get("seeds", [0]))})
-    common.stamp(fig, results["preset"], seeds, results.get("commit", "?"))
+    tables.stamp(fig, results["preset"], seeds_said(results), results.get("commit", "?"))
     fig.tight_layout(rect=(0, 0.085, 1, 0.96))
+    renderer = fig.canvas.get_renderer()
+    px_per_pt = fig.dpi / 72.0
+    for ax, xy, front_i, names, radii, lines in to_label:
+        to_px = ax.transData.transform
+        ok = [i for i, p in enumerate(xy) if np.all(np.isfinite(p))]
+        obstacles = []
+        for i in ok:  # every marker, as its bounding box
+            (cx, cy), r = to_px(xy[i]), radii[i] * px_per_pt
+            obstacles.append((cx - r, cy - r, cx + r, cy + r))
+        for seg in lines:  # error bars and the front's step, as thin boxes
+            (ax0, ay0), (ax1, ay1) = to_px(seg[0]), to_px(seg[1])
+            obstacles.append((min(ax0, ax1) - 1, min(ay0, ay1) - 1, max(ax0, ax1) + 1, max(ay0, ay1) + 1))
+        front_i = [i for i in front_i if i in ok]
+        place_labels(ax, [xy[i] for i in front_i], [names[i] for i in front_i], [radii[i] for i in front_i],
+                     obstacles, renderer)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -106,7 +106,7 @@ def run(cfg, base, betas, alpha, n_seeds, out, ablation_dir=None, data_dir=None,
     reuse_from = None if force else ablation_dir  # --force retrains here rather than reusing the ablation's runs
     per_beta = {}
     for beta, spec in specs.items():
-        runs, per_seed = [], []
+        runs, per_seed, reused = [], [], []
         # a beta the ablation trained (DINO R, DINO RD) also gets every further seed it has, at no cost
         beta_seeds = kernel.seeds_for(cfg, spec, n_seeds, data_root, reuse_from)
         for seed in beta_seeds:
@@ -116,9 +116,11 @@ def run(cfg, base, betas, alpha, n_seeds, out, ablation_dir=None, data_dir=None,
             timings["eval_s"].setdefault(f"{beta:g}", []).append(r.eval_s)
             per_seed.append(scores(r.result))
             runs.append(str(r.dir))
+            reused.append(bool(r.reused))
         per_beta[f"{beta:g}"] = {
             "beta": beta, "alpha": alpha, "ratio": beta / alpha, "method": spec.name, "paper_name": spec.paper_name,
-            "depth_head": spec.depth_head, "seeds": beta_seeds, "run_dirs": runs, "per_seed": per_seed,
+            "depth_head": spec.depth_head, "seeds": beta_seeds, "run_dirs": runs, "reused": reused,
+            "per_seed": per_seed,
             **{m: common.mean_std([s[m] for s in per_seed]) for m in METRICS},
         }
     timings["total_s"] = round(time.perf_counter() - t0, 1)
@@ -221,10 +223,39 @@ def _seed_text(results: dict) -> str:
     return f"{counts[0]} seed(s)" if len(counts) == 1 else f"{counts[0]}-{counts[-1]} seeds per beta"
 
 
+def _cells(results: dict) -> dict:
+    """{beta: (seeds, reused)} for tables.seeds_text: reused True when every run of the beta is the ablation's, False
+    when none is, None when some are. A results.json from before `reused` was recorded: a beta with seeds beyond the
+    sweep's own came from the ablation (only its runs add seeds), and so did every beta whose runs sit in the same
+    experiment folder (<folder>/runs/<method>/seed<k>) as such a beta's."""
+    pb, own = results["per_beta"], {int(s) for s in results.get("seeds", [])}
+
+    def seeds(v):
+        return v.get("seeds") or sorted(own)[: len(v["per_seed"])]
+
+    def folder(d):
+        return str(Path(d).parents[2]) if len(Path(d).parents) > 2 else ""
+
+    abl = {folder(d) for v in pb.values() if set(map(int, seeds(v))) - own for d in v.get("run_dirs", [])}
+    out = {}
+    for k, v in pb.items():
+        flags = v.get("reused") or [folder(d) in abl for d in v.get("run_dirs", [])]
+        out[k] = (seeds(v), True if flags and all(flags) else False if not any(flags) else None)
+    return out
+
+
+def seeds_said(results: dict, names: bool = False) -> str:
+    """The sweep's seeds in words, e.g. "0 for the sweep's own cells; 0-2 for the cells reused from the ablation"
+    (names: the betas of each group in brackets)."""
+    return tables.seeds_text(_cells(results), here="the sweep's own cells",
+                             names=(lambda ks: "beta " + ", ".join(ks)) if names else None)
+
+
 def write_all(results: dict, out: Path) -> None:
     header, rows, (csv_header, csv_rows) = _table(results)
     text = (f"# Loss-weight sweep: alpha * L1(force) + beta * MSE(depth), base {style.name(results['base'])} "
             f"(preset {results['preset']}, {_seed_text(results)}, commit {results['commit'][:12]})\n\n"
+            f"Seeds: {seeds_said(results, names=True)}.\n\n"
             f"Normalized L1 error %, mean ± std over seeds (± only over 2 or more). beta = 0: {results['beta0']}.\n\n"
             + common.md_table(header, rows) + "\n" + results["finding"] + "\n\n![sweep](sweep.png)\n")
     common.write_text(out / "sweep.md", text)
@@ -292,8 +323,7 @@ def plot(results: dict, path: Path) -> Path:
         a1.set_title(METRICS[m], fontsize=9)
     fig.suptitle(f"Loss-weight sweep ({style.name(results['base'])}, preset {results['preset']}, "
                  f"{_seed_text(results)})", fontsize=10)
-    seeds = sorted({int(s) for v in results["per_beta"].values() for s in v.get("seeds", results["seeds"])})
-    common.stamp(fig, results["preset"], seeds, results.get("commit", "?"))
+    tables.stamp(fig, results["preset"], seeds_said(results), results.get("commit", "?"))
     return tables.save_png(fig, Path(path))
 
 

@@ -301,8 +301,8 @@ def save_png(fig, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
-    title = fig._suptitle  # on a tall grid tight_layout can put the top row's titles under the figure's title
-    if title is not None and title.get_text():
+    title = _suptitle(fig)  # on a tall grid tight_layout can put the top row's titles under the figure's title
+    if title is not None:
         renderer = fig.canvas.get_renderer()
         below = title.get_window_extent(renderer).y0 / fig.bbox.height
         axes = [ax for ax in fig.axes if ax.get_visible()]
@@ -314,6 +314,64 @@ def save_png(fig, path: Path) -> Path:
     plt.close(fig)
     tmp.replace(path)
     return path
+
+
+def _suptitle(fig):
+    """The figure title's Text artist, None when there is none: `fig.get_suptitle()` (public API) gives its string,
+    and `fig.suptitle` puts the artist among `fig.texts`; the last with that text is it (suptitle reuses its
+    artist, so a second call leaves one)."""
+    text = fig.get_suptitle()
+    return next((t for t in reversed(fig.texts) if t.get_text() == text), None) if text else None
+
+
+def seed_span(seeds) -> str:
+    """Seeds as people write them: [0, 1, 2] -> '0-2', [0] -> '0', [0, 1, 4] -> '0-1, 4'."""
+    spans: list[list[int]] = []
+    for k in sorted({int(k) for k in seeds}):
+        if spans and k == spans[-1][1] + 1:
+            spans[-1][1] = k
+        else:
+            spans.append([k, k])
+    return ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in spans)
+
+
+REUSE_WORDS = {False: "{here}", None: "the cells partly reused from the ablation",
+               True: "the cells reused from the ablation"}  # by where a cell's runs came from: none, some, all
+
+
+def seed_groups(cells: dict) -> list[tuple[str, list, list[str]]]:
+    """Cells {label: (seeds, reused)} grouped by their seeds: [(seed span, the groups' `reused` values in
+    REUSE_WORDS' order, labels)], fewest seeds first. reused: True = every run of the cell the ablation's, False =
+    none, None = some."""
+    groups: dict = {}
+    for label, (seeds, reused) in cells.items():
+        groups.setdefault((len(set(seeds)), seed_span(seeds)), []).append((label, reused))
+    return [(span, [r for r in REUSE_WORDS if r in {x for _, x in members}], [lab for lab, _ in members])
+            for (_, span), members in sorted(groups.items())]
+
+
+def seeds_text(cells: dict, here: str = "the cells trained here", names=None) -> str:
+    """What seeds a figure or table holds, in words, from its cells {label: (seeds, reused)}: '0-2' when every cell
+    has the same seeds, else per group, e.g. "0 for the sweep's own cells; 0-2 for the cells reused from the
+    ablation". names: a function of a group's labels whose text follows the group in brackets (None: no names)."""
+    groups = seed_groups(cells)
+    if len(groups) <= 1:
+        return groups[0][0] if groups else "none"
+    return "; ".join(f"{span} for {' and '.join(REUSE_WORDS[r].format(here=here) for r in reused)}"
+                     + (f" ({names(labels)})" if names else "") for span, reused, labels in groups)
+
+
+def stamp(fig, preset: str, seeds: str, commit: str) -> None:
+    """common.stamp with the seeds in words (seeds_text): ffjax.results.stamp prints a list, which cannot say that
+    some cells have more seeds than others."""
+    n = len(fig.texts)
+    common.stamp(fig, preset, [], commit)
+    if not seeds or len(fig.texts) <= n:
+        return
+    text = fig.texts[n]  # the stamp just added
+    head, sep, tail = text.get_text().partition(" · commit ")
+    said = f"seed{'' if seeds.isdigit() else 's'} {seeds}"
+    text.set_text(f"{head} · {said}{sep}{tail}" if sep else f"{text.get_text()} · {said}")
 
 
 def write_all(results: dict, out: Path) -> None:

@@ -148,3 +148,28 @@ def test_stability_solves_levels_that_share_presses_once_with_the_same_frames(mo
     mini2 = sim.get_sensor("mini-3-gel2")
     with pytest.raises(ValueError, match="solves presses differently"):
         sim.press_many_seen(["sphere_small"], [nominal, mini2], [(0, 0, 1.0)], [0], [0], [0], [(0, 0)], [0], size)
+
+
+def test_sweep_says_which_betas_have_which_seeds():
+    """The sweep's own betas are seed 0, the betas reused from the ablation 0-2: said per group, not as the union;
+    a results.json from before `reused` was recorded reads the same from its run folders."""
+    def beta(seeds, folder, method):
+        return {"seeds": seeds, "per_seed": [{}] * len(seeds),
+                "run_dirs": [f"/r/{folder}/runs/{method}/seed{k}" for k in seeds]}
+
+    res = {"seeds": [0], "per_beta": {"0": beta([0, 1, 2], "ablation", "dino_r"), "1": beta([0], "sweep", "b1"),
+                                      "10": beta([0, 1, 2], "ablation", "dino_rd"), "30": beta([0], "sweep", "b30")}}
+    want = "0 for the sweep's own cells (beta 1, 30); 0-2 for the cells reused from the ablation (beta 0, 10)"
+    assert sweep_loss.seeds_said(res, names=True) == want
+    for k, v in res["per_beta"].items():
+        v["reused"] = [k in ("0", "10")] * len(v["seeds"])
+    assert sweep_loss.seeds_said(res, names=True) == want
+
+
+def test_downstream_names_the_checkpoint_a_figure_shows():
+    from experiments import downstream_report
+
+    res = {"checkpoints": {"dino_rd": ["/r/ablation/runs/dino_rd/seed2", "/r/ablation/runs/dino_rd/seed0"]}}
+    assert downstream_report.first_checkpoint(res, "dino_rd") == "one DINO RD checkpoint (seed 2)"
+    res = {"checkpoints": {"dino_rd": ["/r/runs/quick-dino_rd"]}}
+    assert downstream_report.first_checkpoint(res, "dino_rd") == "one DINO RD checkpoint (quick-dino_rd)"

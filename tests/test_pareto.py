@@ -55,3 +55,51 @@ def test_backbone_folder_per_size(tmp_path, monkeypatch):
     assert len(folders) == 2 and all(f.parent == tmp_path / "pretrained" for f in folders)
     assert tmp_path / "pretrained" / "vit" not in folders  # the preset's own (the ablation's) stays apart
     assert pareto.backbone_for(cfg, cfg, "vit-s", registry.get("dino_rd_scratch"), tmp_path, False, False) is None
+
+
+def _cell(method, size, seeds, runs):
+    return {"method": method, "size": size, "seeds": seeds, "runs": runs}
+
+
+def test_seeds_said_tells_own_cells_from_the_ablations():
+    """The figure corner and pareto.md say which cells have which seeds (not the union over all cells)."""
+    abl = [f"/a/runs/dino_r/seed{k}" for k in range(3)]
+    res = {"seeds": [0], "reused_ablation_runs": abl,
+           "cells": [_cell("dino_rd", "vit-xs", [0], ["/p/runs/vit-xs/dino_rd/seed0"]),
+                     _cell("dino_r", "vit-s", [0, 1, 2], abl)]}
+    assert pareto.seeds_said(res) == "0 for the cells trained here; 0-2 for the cells reused from the ablation"
+    assert pareto.seeds_said(res, names=True) == ("0 for the cells trained here (DINO RD vit-xs); "
+                                                  "0-2 for the cells reused from the ablation (DINO R vit-s)")
+    res["cells"][1]["seeds"], res["cells"][1]["runs"] = [0], abl[:1]
+    assert pareto.seeds_said(res) == "0"  # every cell alike: just the seeds
+
+
+def test_seed_span():
+    from experiments import tables
+
+    assert [tables.seed_span(s) for s in ([0], [2, 0, 1], [0, 1, 4], [])] == ["0", "0-2", "0-1, 4", ""]
+
+
+def test_point_labels_miss_each_other_and_stay_in_the_axes():
+    """Crowded points, some at the axes' edge: every label inside the axes and clear of the others."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.text import Text
+
+    fig, ax = plt.subplots(figsize=(4, 3))
+    pts = [(0.0, 0.0), (0.02, 0.01), (0.04, -0.01), (1.0, 1.0), (0.98, 0.99), (0.5, 0.5)]
+    ax.scatter(*zip(*pts))
+    ax.set(xlim=(-0.05, 1.05), ylim=(-0.05, 1.05))
+    fig.tight_layout()
+    renderer = fig.canvas.get_renderer()
+    labels = pareto.place_labels(ax, pts, [f"method {k} long-name" for k in range(len(pts))], [4.0] * len(pts),
+                                 [], renderer)
+    for t in labels:
+        t.update_positions(renderer)
+    boxes = [Text.get_window_extent(t, renderer) for t in labels]  # the text's, without a leader line
+    frame = ax.get_window_extent(renderer)
+    assert all(frame.x0 <= b.x0 and b.x1 <= frame.x1 and frame.y0 <= b.y0 and b.y1 <= frame.y1 for b in boxes)
+    assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
+    plt.close(fig)
