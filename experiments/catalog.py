@@ -188,7 +188,8 @@ EXPERIMENTS = (
     Experiment("pattern_share", "experiments.pattern_share",
                "Table II when none, half or all of the sensor's fine fixed pattern is the gel's pigment (a share no "
                "frame at rest can measure)", _has("per_share", "nominal_share"), _replot_pattern,
-               args=_pattern_args, reuses="ablation", figures=("experiments/style.py",), on_request=True,
+               args=_pattern_args, reuses="ablation", figures=("experiments/tables.py", "experiments/style.py"),
+               on_request=True,
                cell_seeds=lambda r: [len(v["per_seed"]) for c in r["per_share"].values()
                                      for v in c["methods"].values()]),
     Experiment("pareto", "experiments.pareto",
