@@ -71,7 +71,8 @@ def stamp(fig, res: dict, runs=None) -> None:
     if runs is None:
         runs = [r for rs in res.get("checkpoints", {}).values() for r in rs]
     seeds = [s for s in map(_seed, runs) if s is not None]
-    tables.stamp(fig, res.get("preset", "?"), tables.seed_span(seeds) if seeds else "?", res.get("commit", "?"))
+    common.stamp(fig, res.get("preset", "?"), [], res.get("commit", "?"),
+                 seeds_text=tables.seed_span(seeds) if seeds else "?")
 
 
 def table4_md(res: dict) -> str:

@@ -551,7 +551,7 @@ def plot(results: dict, path: Path) -> Path:
                fontsize=8)
     fig.suptitle(f"Speed vs accuracy — {results['preset']} preset, commit {_short(results['commit'])}, "
                  f"{results['machine']['cpu_model']} (load {_la(results['machine']['loadavg_before'])})", fontsize=10)
-    tables.stamp(fig, results["preset"], seeds_said(results), results.get("commit", "?"))
+    common.stamp(fig, results["preset"], [], results.get("commit", "?"), seeds_text=seeds_said(results))
     fig.tight_layout(rect=(0, 0.085, 1, 0.96))
     renderer = fig.canvas.get_renderer()
     px_per_pt = fig.dpi / 72.0

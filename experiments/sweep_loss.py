@@ -323,7 +323,7 @@ def plot(results: dict, path: Path) -> Path:
         a1.set_title(METRICS[m], fontsize=9)
     fig.suptitle(f"Loss-weight sweep ({style.name(results['base'])}, preset {results['preset']}, "
                  f"{_seed_text(results)})", fontsize=10)
-    tables.stamp(fig, results["preset"], seeds_said(results), results.get("commit", "?"))
+    common.stamp(fig, results["preset"], [], results.get("commit", "?"), seeds_text=seeds_said(results))
     return tables.save_png(fig, Path(path))
 
 

@@ -361,19 +361,6 @@ def seeds_text(cells: dict, here: str = "the cells trained here", names=None) ->
                      + (f" ({names(labels)})" if names else "") for span, reused, labels in groups)
 
 
-def stamp(fig, preset: str, seeds: str, commit: str) -> None:
-    """common.stamp with the seeds in words (seeds_text): ffjax.results.stamp prints a list, which cannot say that
-    some cells have more seeds than others."""
-    n = len(fig.texts)
-    common.stamp(fig, preset, [], commit)
-    if not seeds or len(fig.texts) <= n:
-        return
-    text = fig.texts[n]  # the stamp just added
-    head, sep, tail = text.get_text().partition(" · commit ")
-    said = f"seed{'' if seeds.isdigit() else 's'} {seeds}"
-    text.set_text(f"{head} · {said}{sep}{tail}" if sep else f"{text.get_text()} · {said}")
-
-
 def write_all(results: dict, out: Path) -> None:
     out = Path(out)
     for name, fn in (("table1", table1_md), ("table2", table2_md), ("table3", table3_md)):

@@ -75,11 +75,16 @@ def md_table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(out) + "\n"
 
 
-def stamp(fig, preset: str, seeds, commit: str) -> None:
+def stamp(fig, preset: str, seeds, commit: str, seeds_text: str | None = None) -> None:
     """Print what a figure was made from in its corner (preset, seeds, commit), and say so when the preset's
     numbers mean nothing: a PNG copied into a notebook keeps its provenance. No seeds (a simulator-only check
-    trains nothing): none shown."""
-    text = f"ffjax · preset {preset}" + (f" · seeds {list(seeds)}" if seeds else "") + f" · commit {str(commit)[:7]}"
+    trains nothing): none shown. seeds_text: the seeds already in words (e.g. "0-2", or "0 for ...; 0-2 for ..."
+    where cells differ), printed instead of the list `seeds`."""
+    if seeds_text:
+        said = f" · seed{'' if seeds_text.isdigit() else 's'} {seeds_text}"
+    else:
+        said = f" · seeds {list(seeds)}" if seeds else ""
+    text = f"ffjax · preset {preset}{said} · commit {str(commit)[:7]}"
     if preset == "smoke":
         text += " · SMOKE PRESET: plumbing check, numbers meaningless"
     fig.text(0.995, 0.005, text, ha="right", va="bottom", fontsize=7, color="0.35")
