@@ -15,6 +15,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 import configs
 
 # re-exported: the experiments write their tables and files through common
@@ -133,24 +135,124 @@ def fingerprint(*parts) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def place_labels(ax, xs, ys, texts, fontsize: float = 7) -> None:
-    """Annotate points without labels on top of each other: each label takes the first of a few offsets
-    (right, below, left, above ...) whose box misses the boxes placed before it. Call after the axes' scales
-    are set."""
-    ax.autoscale_view()
-    to_px = ax.transData.transform
-    char_w, line_h = 0.6 * fontsize, 1.3 * fontsize  # in points ~ pixels at the figures' dpi scale
-    placed = []
-    for x, y, text in sorted(zip(xs, ys, texts), key=lambda t: -t[1]):
-        px, py = to_px((x, y))
-        w = char_w * len(text)
-        for dx, dy in ((4, 3), (4, -line_h - 2), (-w - 4, 3), (-w - 4, -line_h - 2), (4, line_h + 4),
-                       (4, -2 * line_h - 4), (-w / 2, line_h + 6), (-w / 2, -2 * line_h - 6)):
-            box = (px + dx, py + dy, px + dx + w, py + dy + line_h)
-            if not any(b[0] < box[2] and box[0] < b[2] and b[1] < box[3] and box[1] < b[3] for b in placed):
-                break
+# Point labels: the text's size, a gap to its marker, and the offsets tried (in points, times the marker's radius
+# plus the gap): right, left, the four diagonals, above, below; then the same farther out (_RINGS), with a leader
+# line.
+LABEL_FONT = 7
+LABEL_GAP = 2.0
+_DIRECTIONS = (("left", "center", 1, 0), ("right", "center", -1, 0), ("left", "bottom", 0.8, 0.8),
+               ("left", "top", 0.8, -0.8), ("right", "bottom", -0.8, 0.8), ("right", "top", -0.8, -0.8),
+               ("center", "bottom", 0, 1), ("center", "top", 0, -1))  # diagonals: the corner clears the marker
+_RINGS = (1.0, 2.2, 3.4)
+
+
+def _overlap(a, b) -> float:
+    """Area shared by two boxes (x0, y0, x1, y1)."""
+    return max(0.0, min(a[2], b[2]) - max(a[0], b[0])) * max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+
+
+def place_labels(ax, points, texts, radii, obstacles, renderer, fontsize: float = LABEL_FONT) -> list:
+    """Label points (data coordinates) where the labels miss each other, every marker and line and stay inside the
+    axes: each label takes the cheapest of the offsets in _DIRECTIONS, sized by the renderer's text extents; the
+    most crowded points choose first. obstacles: boxes (x0, y0, x1, y1) in display pixels, a line's at most 3 px
+    across, a marker's more. radii: each point's marker radius in points. Call after the figure's layout and the
+    axes' limits are final (label_points does this from the axes' own markers and lines). Returns the annotations,
+    left out of later layouts (they sit inside the axes)."""
+    import matplotlib.patheffects as pe
+
+    px_per_pt = ax.figure.dpi / 72.0
+    inner = ax.get_window_extent(renderer).padded(-2)
+    frame = (inner.x0, inner.y0, inner.x1, inner.y1)
+    anchors = [tuple(ax.transData.transform(p)) for p in points]
+    lines = [b for b in obstacles if min(b[2] - b[0], b[3] - b[1]) <= 3]
+    marks = [b for b in obstacles if min(b[2] - b[0], b[3] - b[1]) > 3]
+    centres = [((b[0] + b[2]) / 2, (b[1] + b[3]) / 2) for b in marks]
+    style_kw = {"textcoords": "offset points", "fontsize": fontsize, "zorder": 6,
+                "path_effects": [pe.withStroke(linewidth=2.5, foreground="white")]}  # legible over grid lines
+    sizes = []
+    for (x, y), text in zip(points, texts):  # measured, then removed: the chosen offset is drawn below
+        probe = ax.annotate(text, (x, y), xytext=(0, 0), **style_kw)
+        bb = probe.get_window_extent(renderer)
+        sizes.append((bb.width + 2, bb.height + 1))
+        probe.remove()
+
+    def candidates(i):
+        (px, py), (w, h) = anchors[i], sizes[i]
+        d = radii[i] + LABEL_GAP
+        for ring, scale in enumerate(_RINGS):
+            for ha, va, ux, uy in _DIRECTIONS:
+                ox, oy = ux * d * scale, uy * d * scale
+                x0 = px + ox * px_per_pt - {"left": 0, "right": w, "center": w / 2}[ha]
+                y0 = py + oy * px_per_pt - {"bottom": 0, "top": h, "center": h / 2}[va]
+                yield (ha, va, ox, oy, ring), (x0, y0, x0 + w, y0 + h)
+
+    def dist(box, x, y) -> float:
+        return float(np.hypot(max(box[0] - x, 0, x - box[2]), max(box[1] - y, 0, y - box[3])))
+
+    def cost(i, box, ring, placed) -> float:
+        """Outside the axes or on another label: never where avoidable; on a marker: bad; across a thin line:
+        minor. A farther ring, or an offset nearer another marker than its own (whose point would it name?),
+        costs extra."""
+        outside = (box[2] - box[0]) * (box[3] - box[1]) - _overlap(box, frame)
+        own = dist(box, *anchors[i])
+        nearer = any(dist(box, x, y) < own for x, y in centres
+                     if np.hypot(x - anchors[i][0], y - anchors[i][1]) > 0.5)
+        return (1e4 * outside + 1e3 * sum(_overlap(box, b) for b in placed) + 10 * sum(_overlap(box, b) for b in marks)
+                + 2 * sum(_overlap(box, b) for b in lines) + 300 * ring + 500 * nearer)
+
+    free = [sum(cost(i, box, c[4], []) < 1e-6 for c, box in candidates(i)) for i in range(len(points))]
+    placed, out = [], []
+    for i in sorted(range(len(points)), key=lambda i: (free[i], i)):
+        # the cheapest offset; among equals the first (near before far, right before left ...)
+        _, ((ha, va, ox, oy, ring), box) = min(enumerate(candidates(i)),
+                                              key=lambda kc: (cost(i, kc[1][1], kc[1][0][4], placed), kc[0]))
         placed.append(box)
-        ax.annotate(text, (x, y), xytext=(dx, dy), textcoords="offset pixels", fontsize=fontsize)
+        arrow = {"arrowprops": {"arrowstyle": "-", "lw": 0.5, "color": "0.4", "shrinkA": 0,
+                                "shrinkB": radii[i]}} if ring else {}  # a leader line back to the marker
+        out.append(ax.annotate(texts[i], points[i], xytext=(ox, oy), ha=ha, va=va, **style_kw, **arrow))
+        out[-1].set_in_layout(False)
+    return out
+
+
+def label_points(ax, xs, ys, texts, fontsize: float = LABEL_FONT) -> list:
+    """place_labels for a plain scatter: the obstacles are what the axes hold (every scatter marker, every line,
+    the legend) and each point's radius is that of the marker drawn on it (default size where none is). Call once
+    the figure's layout is final (e.g. through tables.save_png's `then`, or after fig.draw_without_rendering()
+    for a layout engine): the labels are placed in display space. Non-finite points get no label."""
+    fig = ax.figure
+    renderer = fig.canvas.get_renderer()
+    ax.set(xlim=ax.get_xlim(), ylim=ax.get_ylim())  # the autoscaled limits, fixed before placing in display space
+    px_per_pt = fig.dpi / 72.0
+    obstacles, marks = [], []  # marks: (centre x, y in px, radius in points)
+    for coll in ax.collections:
+        offsets = coll.get_offset_transform().transform(coll.get_offsets())
+        sizes = np.broadcast_to(coll.get_sizes() if len(coll.get_sizes()) else [36.0], (len(offsets),))
+        for (cx, cy), s in zip(offsets, sizes):
+            r = float(np.sqrt(s)) / 2 + 1  # points, with the edge
+            marks.append((cx, cy, r))
+            obstacles.append((cx - r * px_per_pt, cy - r * px_per_pt, cx + r * px_per_pt, cy + r * px_per_pt))
+    for line in ax.lines:
+        xy = line.get_transform().transform(line.get_xydata())
+        for (x0, y0), (x1, y1) in zip(xy, xy[1:]):
+            # thin boxes along the segment (at most 1 px a step), which place_labels reads as a line's
+            n = max(1, int(np.ceil(min(abs(x1 - x0), abs(y1 - y0)))))
+            t = np.linspace(0, 1, n + 1)
+            for a, b in zip(t, t[1:]):
+                xa, xb, ya, yb = x0 + a * (x1 - x0), x0 + b * (x1 - x0), y0 + a * (y1 - y0), y0 + b * (y1 - y0)
+                obstacles.append((min(xa, xb) - 1, min(ya, yb) - 1, max(xa, xb) + 1, max(ya, yb) + 1))
+    if ax.get_legend() is not None:
+        bb = ax.get_legend().get_window_extent(renderer)
+        obstacles.append((bb.x0, bb.y0, bb.x1, bb.y1))
+    points, shown, radii = [], [], []
+    for x, y, text in zip(xs, ys, texts):
+        if not (np.isfinite(x) and np.isfinite(y)):
+            continue
+        px, py = ax.transData.transform((x, y))
+        near = [r for cx, cy, r in marks if np.hypot(cx - px, cy - py) < 0.5]
+        points.append((x, y))
+        shown.append(text)
+        radii.append(max(near, default=4.0))
+    return place_labels(ax, points, shown, radii, obstacles, renderer, fontsize)
 
 
 def ensure_data(cfg: dict, data_dir=None, force: bool = False, progress: bool = True) -> Path:

@@ -402,83 +402,6 @@ def seeds_said(results: dict, names: bool = False) -> str:
     return tables.seeds_text(cells, here="the cells trained here", names=", ".join if names else None)
 
 
-# Point labels: the text's size, a gap to its marker, and the offsets tried (in points, times the marker's radius
-# plus the gap): right, left, the four diagonals, above, below; then the same farther out (_RINGS), with a leader
-# line.
-LABEL_FONT = 7
-LABEL_GAP = 2.0
-_DIRECTIONS = (("left", "center", 1, 0), ("right", "center", -1, 0), ("left", "bottom", 0.8, 0.8),
-               ("left", "top", 0.8, -0.8), ("right", "bottom", -0.8, 0.8), ("right", "top", -0.8, -0.8),
-               ("center", "bottom", 0, 1), ("center", "top", 0, -1))  # diagonals: the corner clears the marker
-_RINGS = (1.0, 2.2, 3.4)
-
-
-def _overlap(a, b) -> float:
-    """Area shared by two boxes (x0, y0, x1, y1)."""
-    return max(0.0, min(a[2], b[2]) - max(a[0], b[0])) * max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-
-
-def place_labels(ax, points, texts, radii, obstacles, renderer) -> list:
-    """Label points (data coordinates) where the labels miss each other, every marker and line and stay inside the
-    axes: each label takes the cheapest of the offsets in _DIRECTIONS, sized by the renderer's text extents; the
-    most crowded points choose first. obstacles: boxes (x0, y0, x1, y1) in display pixels, a line's at most 3 px
-    across, a marker's more. radii: each point's marker radius in points. Call after the figure's layout and the
-    axes' limits are final. Returns the annotations."""
-    import matplotlib.patheffects as pe
-
-    px_per_pt = ax.figure.dpi / 72.0
-    inner = ax.get_window_extent(renderer).padded(-2)
-    frame = (inner.x0, inner.y0, inner.x1, inner.y1)
-    anchors = [tuple(ax.transData.transform(p)) for p in points]
-    lines = [b for b in obstacles if min(b[2] - b[0], b[3] - b[1]) <= 3]
-    marks = [b for b in obstacles if min(b[2] - b[0], b[3] - b[1]) > 3]
-    centres = [((b[0] + b[2]) / 2, (b[1] + b[3]) / 2) for b in marks]
-    style_kw = {"textcoords": "offset points", "fontsize": LABEL_FONT, "zorder": 6,
-                "path_effects": [pe.withStroke(linewidth=2.5, foreground="white")]}  # legible over grid lines
-    sizes = []
-    for (x, y), text in zip(points, texts):  # measured, then removed: the chosen offset is drawn below
-        probe = ax.annotate(text, (x, y), xytext=(0, 0), **style_kw)
-        bb = probe.get_window_extent(renderer)
-        sizes.append((bb.width + 2, bb.height + 1))
-        probe.remove()
-
-    def candidates(i):
-        (px, py), (w, h) = anchors[i], sizes[i]
-        d = radii[i] + LABEL_GAP
-        for ring, scale in enumerate(_RINGS):
-            for ha, va, ux, uy in _DIRECTIONS:
-                ox, oy = ux * d * scale, uy * d * scale
-                x0 = px + ox * px_per_pt - {"left": 0, "right": w, "center": w / 2}[ha]
-                y0 = py + oy * px_per_pt - {"bottom": 0, "top": h, "center": h / 2}[va]
-                yield (ha, va, ox, oy, ring), (x0, y0, x0 + w, y0 + h)
-
-    def dist(box, x, y) -> float:
-        return float(np.hypot(max(box[0] - x, 0, x - box[2]), max(box[1] - y, 0, y - box[3])))
-
-    def cost(i, box, ring, placed) -> float:
-        """Outside the axes or on another label: never where avoidable; on a marker: bad; across a thin line:
-        minor. A farther ring, or an offset nearer another marker than its own (whose point would it name?),
-        costs extra."""
-        outside = (box[2] - box[0]) * (box[3] - box[1]) - _overlap(box, frame)
-        own = dist(box, *anchors[i])
-        nearer = any(dist(box, x, y) < own for x, y in centres
-                     if np.hypot(x - anchors[i][0], y - anchors[i][1]) > 0.5)
-        return (1e4 * outside + 1e3 * sum(_overlap(box, b) for b in placed) + 10 * sum(_overlap(box, b) for b in marks)
-                + 2 * sum(_overlap(box, b) for b in lines) + 300 * ring + 500 * nearer)
-
-    free = [sum(cost(i, box, c[4], []) < 1e-6 for c, box in candidates(i)) for i in range(len(points))]
-    placed, out = [], []
-    for i in sorted(range(len(points)), key=lambda i: (free[i], i)):
-        # the cheapest offset; among equals the first (near before far, right before left ...)
-        _, ((ha, va, ox, oy, ring), box) = min(enumerate(candidates(i)),
-                                              key=lambda kc: (cost(i, kc[1][1], kc[1][0][4], placed), kc[0]))
-        placed.append(box)
-        arrow = {"arrowprops": {"arrowstyle": "-", "lw": 0.5, "color": "0.4", "shrinkA": 0,
-                                "shrinkB": radii[i]}} if ring else {}  # a leader line back to the marker
-        out.append(ax.annotate(texts[i], points[i], xytext=(ox, oy), ha=ha, va=va, **style_kw, **arrow))
-    return out
-
-
 def _num(v: float) -> str:
     return f"{v / 1e6:g}M" if v >= 1e6 else f"{v / 1e3:g}k" if v >= 1e4 else f"{v:g}"
 
@@ -566,8 +489,8 @@ def plot(results: dict, path: Path) -> Path:
             (ax0, ay0), (ax1, ay1) = to_px(seg[0]), to_px(seg[1])
             obstacles.append((min(ax0, ax1) - 1, min(ay0, ay1) - 1, max(ax0, ax1) + 1, max(ay0, ay1) + 1))
         front_i = [i for i in front_i if i in ok]
-        place_labels(ax, [xy[i] for i in front_i], [names[i] for i in front_i], [radii[i] for i in front_i],
-                     obstacles, renderer)
+        common.place_labels(ax, [xy[i] for i in front_i], [names[i] for i in front_i],
+                            [radii[i] for i in front_i], obstacles, renderer)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

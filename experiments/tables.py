@@ -296,8 +296,9 @@ def _hatches(t1: dict) -> dict:
     return out
 
 
-def save_png(fig, path: Path) -> Path:
-    """Tight layout (the axes below the figure's title), atomic write (tmp + rename), close."""
+def save_png(fig, path: Path, then=None) -> Path:
+    """Tight layout (the axes below the figure's title), atomic write (tmp + rename), close. then: called with no
+    arguments once the layout is final, before the write (e.g. common.label_points, which needs the layout)."""
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
@@ -309,6 +310,8 @@ def save_png(fig, path: Path) -> Path:
         top = max((ax.get_tightbbox(renderer).y1 / fig.bbox.height for ax in axes), default=0.0)
         if top > below - 0.005:
             fig.tight_layout(rect=(0, 0, 1, below - 0.01))
+    if then is not None:
+        then()
     tmp = path.with_name(f".{path.stem}.tmp.png")
     fig.savefig(tmp, dpi=110)
     plt.close(fig)

@@ -1,7 +1,7 @@
 """experiments.pareto: the Pareto front on hand-made points, the grid and the size configs. Its smoke run is part
 of the whole pipeline's test (test_reproduce.py). No timed assertions: the machine is shared."""
 
-from experiments import pareto
+from experiments import common, pareto
 
 
 def test_front_minimizes_both_axes():
@@ -94,7 +94,7 @@ def test_point_labels_miss_each_other_and_stay_in_the_axes():
     ax.set(xlim=(-0.05, 1.05), ylim=(-0.05, 1.05))
     fig.tight_layout()
     renderer = fig.canvas.get_renderer()
-    labels = pareto.place_labels(ax, pts, [f"method {k} long-name" for k in range(len(pts))], [4.0] * len(pts),
+    labels = common.place_labels(ax, pts, [f"method {k} long-name" for k in range(len(pts))], [4.0] * len(pts),
                                  [], renderer)
     for t in labels:
         t.update_positions(renderer)

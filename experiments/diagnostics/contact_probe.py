@@ -171,18 +171,22 @@ def plot(r: dict, path: Path) -> Path:
         ax.set_xlabel("contact area at Fz >= half range (mm^2, median)")
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
-    for ax, y in zip(axes, ("sens_train", "edge_share")):
-        # the right panel's upper cluster (nearly all the change at the outline) would be a pile of labels
-        shown = [(s, v) for s, v in r["shapes"].items() if v.get("n") and (y == "sens_train" or v["edge_share"] < 0.95)]
-        common.place_labels(ax, [v["area_mm2"] for _, v in shown],
-                            [v[y] * (100 if y == "edge_share" else 1) for _, v in shown],
-                            [s.replace("_", " ") for s, _ in shown])
     axes[0].scatter([], [], marker="o", color="tab:blue", label="training indenters")
     axes[0].scatter([], [], marker="s", color="tab:red", label="unseen objects (Table I)")
     axes[0].legend(fontsize=8)
     fig.suptitle(f"Where Fz shows: contact size against image change per newton ({r['sensor']})")
     common.stamp(fig, r["preset"], [], r["commit"])
-    return save_png(fig, path)
+
+    def labels():  # placed once the layout is final
+        for ax, y in zip(axes, ("sens_train", "edge_share")):
+            # the right panel's upper cluster (nearly all the change at the outline) would be a pile of labels
+            shown = [(s, v) for s, v in r["shapes"].items()
+                     if v.get("n") and (y == "sens_train" or v["edge_share"] < 0.95)]
+            common.label_points(ax, [v["area_mm2"] for _, v in shown],
+                                [v[y] * (100 if y == "edge_share" else 1) for _, v in shown],
+                                [s.replace("_", " ") for s, _ in shown])
+
+    return save_png(fig, path, then=labels)
 
 
 def main(argv=None) -> dict:

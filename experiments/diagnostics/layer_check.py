@@ -246,7 +246,6 @@ def plot(r: dict, path: Path) -> Path:
     ax.scatter(ref_s, sim_s, c=cols)
     lim = max(max(sim_s), max(ref_s)) * 1.1
     ax.plot([0, lim], [0, lim], color="0.4", lw=1)
-    common.place_labels(ax, ref_s, sim_s, [s.replace("_", " ") for s in names], fontsize=7)
     ax.set_xlabel("image change per N, elastic layer (8-bit RMS)")
     ax.set_ylabel("image change per N, simulator")
     ax.set_title("what a network reads Fz from (training size)", fontsize=10)
@@ -257,7 +256,7 @@ def plot(r: dict, path: Path) -> Path:
         a.grid(True, alpha=0.3)
     fig.suptitle(f"Simulator against the exact incompressible elastic layer ({r['sensor']}, {r['preset']})")
     common.stamp(fig, r["preset"], [], r["commit"])  # simulator only: no seeds
-    return save_png(fig, path)
+    return save_png(fig, path, then=lambda: common.label_points(ax, ref_s, sim_s, [s.replace("_", " ") for s in names]))
 
 
 def main(argv=None) -> dict:

@@ -150,6 +150,7 @@ def plot(res: dict, path: Path) -> None:
     runs = list(res.get("readout", {}))
     fig, axes = plt.subplots(1, max(len(runs), 1), figsize=(5.5 * max(len(runs), 1), 4.2), squeeze=False,
                              layout="constrained")
+    to_label = []  # placed once the layout is final (below)
     for ax, run in zip(axes[0], runs or [None]):
         names = [n for n in res["signal"] if run is None or n in res["readout"][run]]
         x = [100 * res["signal"][n]["pad_share"] for n in names]
@@ -159,7 +160,7 @@ def plot(res: dict, path: Path) -> None:
             idx = [i for i, k in enumerate(kinds) if k == kind]
             ax.scatter([x[i] for i in idx], [y[i] for i in idx], marker=marker,
                        label="training indenter (val)" if kind == "indenter" else "Table I object")
-        common.place_labels(ax, x, y, [n.replace("_", " ") for n in names])
+        to_label.append((ax, x, y, [n.replace("_", " ") for n in names]))
         ax.axhline(1.0, color="0.5", ls=":", lw=1)
         ax.set(xlabel=f"contact area at Fz {FZ:g} N, centred (% of the pad)", ylabel="shear read (slope, mean Fx Fy)",
                title=run_label(run) if run else "signal only")
@@ -167,6 +168,9 @@ def plot(res: dict, path: Path) -> None:
     handles, labels = axes[0][0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside right upper", fontsize=8)
     common.stamp(fig, res["preset"], res.get("seeds", []), res["commit"])
+    fig.draw_without_rendering()  # runs the layout engine: the labels are placed in display space
+    for args in to_label:
+        common.label_points(*args)
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
