@@ -14,6 +14,14 @@ it has converged (a convergence mask), its FFTs batched with the others'. float3
   zero sum, the held gel displaced uniformly. One right-hand side instead of two, the same solution (linear in
   the force). Each press brings its own kernels (the layer's at its depth).
 
+Windows (`windows`): a solve whose loads are known to lie in a region of the grid (a stick solve's contact; a
+lighter press of a body inside the contact the full force gives) runs on a small square window holding the region
+at its corner, with the grid's own kernels at every offset between two cells of the region (`_aperiodic`: the
+discrete-convolution FFT of Liu, Wang & Liu, Wear 243, 2000), the window at least twice the region's extent so its
+images never fold onto the region: the whole grid's iterations to round-off, on a fraction of its cells. The
+displacements the solution gives are then applied on the whole grid. Presses are solved in batches of one window
+side each (WINDOW_SIDES), so a grid compiles few programs.
+
 Batches are padded to one of BATCHES (copies of the first press, dropped after), so a sensor and grid compile
 at most len(BATCHES) programs per solve; larger batches are cut into pieces of max_batch() presses: 32 on a
 GPU, 8 on a CPU, where a batch runs until its slowest press converges and batching gains nothing (measured by
@@ -215,19 +223,52 @@ def _padded(x: np.ndarray, size: int) -> np.ndarray:
 
 def normal(hb: np.ndarray, fz: np.ndarray, layer: Layer, thickness: float, eps: np.ndarray | None,
            psi: np.ndarray | None, refuse_above: float = np.inf, tol: float = 1e-6, outer_tol: float = 1e-4,
-           max_iter: int = 2000) -> dict:
+           max_iter: int = 2000, windows: np.ndarray | None = None) -> dict:
     """The normal solve of B presses: hb (B, *layer.shape) heights above each body's lowest point (FAR where
     there is no body), fz (B,) N > 0; eps/psi the stiffening table (None: the linear layer); refuse_above (mm)
-    the approach the caller refuses (a press past it stops early). Returns numpy arrays: delta (B,) mm,
-    u (B, H, W) the linear layer's displacement, p (B, H, W) MPa, iterations (B,)."""
+    the approach the caller refuses (a press past it stops early); windows (B, 5) (`windows`): each press's body
+    kept to its region, the solve run on its window (None: the whole grid). Returns numpy arrays: delta (B,) mm,
+    u (B, H, W) the linear layer's displacement on the whole grid, p (B, H, W) MPa, iterations (B,)."""
     hb, fz = np.asarray(hb, np.float32), np.asarray(fz, np.float32)
+    solve = functools.partial(_normal_grid, thickness=thickness, eps=eps, psi=psi, refuse_above=refuse_above,
+                              tol=tol, outer_tol=outer_tol, max_iter=max_iter)
+    if windows is None:
+        return solve(hb, fz, layer, _kernels(layer))
+    out = {"delta": np.empty(len(hb), np.float32), "u": None, "p": np.zeros_like(hb),
+           "iterations": np.empty(len(hb), np.int32)}
+    for side, idx in _groups(windows):
+        if not side:
+            r = solve(hb[idx], fz[idx], layer, _kernels(layer))
+            out["p"][idx] = r["p"]
+        else:
+            r = solve(np.stack([_into_window(hb[i], w, FAR) for i, w in zip(idx, windows[idx])]), fz[idx], layer,
+                      _window_kernel(layer, side))
+            out["p"][idx] = [_out_of_window(p, w, layer.shape) for p, w in zip(r["p"], windows[idx])]
+        out["delta"][idx], out["iterations"][idx] = r["delta"], r["iterations"]
     kernel = _kernels(layer)
+    out["u"] = np.concatenate(_solve_pieces(lambda a, b, m: _apply(_padded(out["p"][a:b], m), kernel)[: b - a],
+                                            len(hb)))
+    return out
+
+
+@jax.jit
+def _apply(p, kernel):
+    """The displacement under each pressure of the batch p (B, H, W), the grid's kernel on its rfft2 grid."""
+    return jnp.fft.irfft2(kernel * jnp.fft.rfft2(p), s=p.shape[-2:])
+
+
+def _normal_grid(hb, fz, layer: Layer, kernel, thickness, eps, psi, refuse_above, tol, outer_tol, max_iter) -> dict:
+    """`normal` on the grid of hb with `kernel`: the layer's own (its whole grid) or a window's."""
     run = _normal_program(float(layer.dx) ** 2, float(thickness), float(tol), float(outer_tol), int(max_iter),
                           float(refuse_above), eps is not None)
     table = tuple(jnp.asarray(np.zeros(2) if t is None else t, jnp.float32) for t in (eps, psi))
     parts = _solve_pieces(lambda a, b, m: run(_padded(hb[a:b], m), _padded(fz[a:b], m), kernel, *table), len(hb))
-    names = ("delta", "u", "p", "iterations")
-    return {k: np.concatenate([np.asarray(part[i])[: b - a] for part, (a, b, _) in zip(parts, _pieces(len(hb)))])
+    return _joined(parts, len(hb), ("delta", "u", "p", "iterations"))
+
+
+def _joined(parts, n: int, names) -> dict:
+    """The pieces' outputs, padding dropped, joined along the batch: {name: (n, ...)}."""
+    return {k: np.concatenate([np.asarray(part[i])[: b - a] for part, (a, b, _) in zip(parts, _pieces(n))])
             for i, k in enumerate(names)}
 
 
@@ -246,9 +287,9 @@ def _coupled_apply(kern, q):
     return jnp.fft.irfft2(lax.complex(re, im), s=q.shape[-2:])
 
 
-def _stick_one(held, force, hold, surface, cell, tol, max_iter):
-    """The force-controlled stick solve of one press with its kernels on the held plane and at the surface:
-    (fields (3, H, W) = (ux, uy, depth) mm, the held gel's on the contact, s (2,) mm, iterations)."""
+def _stick_traction(held, force, hold, cell, tol, max_iter):
+    """The force-controlled stick solve of one press with its kernels on the held plane: the traction and pressure
+    change t (3, H, W) on the contact, and the iterations."""
     on = held.astype(jnp.float32)
     n_on = jnp.sum(on)
 
@@ -275,37 +316,139 @@ def _stick_one(held, force, hold, surface, cell, tol, max_iter):
         return it + 1, t, r, r + (rr_new / jnp.maximum(rr, _TINY)) * d, rr_new
 
     it, t, *_ = lax.while_loop(cond, step, (0, t, r, r, rr))
+    return t, it
+
+
+def _stick_fields(held, t, hold, surface):
+    """The displacements the stick traction t gives: fields (3, H, W) = (ux, uy, depth) mm, the held gel's on the
+    contact, the surface's elsewhere; and s (2,) mm, the held gel's mean displacement (the body's)."""
     at_hold = _coupled_apply(hold, t)
-    fields = jnp.where(held, at_hold, _coupled_apply(surface, t))
-    return fields, jnp.sum(at_hold[:2] * on, (-2, -1)) / n_on, it
+    on = held.astype(jnp.float32)
+    return jnp.where(held, at_hold, _coupled_apply(surface, t)), jnp.sum(at_hold[:2] * on, (-2, -1)) / jnp.sum(on)
 
 
 @functools.lru_cache(maxsize=32)
-def _stick_program(cell: float, tol: float, max_iter: int):
-    def run(held, force, hold, surface):
-        return jax.vmap(lambda h, f, a, b: _stick_one(h, f, a, b, cell, tol, max_iter))(held, force, hold, surface)
+def _traction_program(cell: float, tol: float, max_iter: int):
+    return jax.jit(jax.vmap(lambda h, f, a: _stick_traction(h, f, a, cell, tol, max_iter)))
 
-    return jax.jit(run)
+
+_fields_program = jax.jit(jax.vmap(_stick_fields))
+
+
+def _depth_kernels(layer: Layer, depths, j: int) -> np.ndarray:
+    """(B, 8, H, W // 2 + 1): the coupled kernels `layer.coupled(d)[j]` (0: on the held plane, 1: at the surface)
+    of each depth."""
+    return np.stack([np.stack(layer.coupled(float(d))[j]) for d in depths])
+
+
+def _hold_kernels(layer: Layer, side: int, depths) -> np.ndarray:
+    """The kernels on the held plane of each depth: on a window of `side` (`_window_coupled`), 0: the whole grid."""
+    if not side:
+        return _depth_kernels(layer, depths, 0)
+    return np.stack([np.stack(_window_coupled(layer, side, float(d))) for d in depths])
 
 
 def stick(held: np.ndarray, force: np.ndarray, layer: Layer, depths=None, tol: float = 1e-4,
-          max_iter: int = 500) -> dict:
+          max_iter: int = 500, windows: np.ndarray | None = None) -> dict:
     """The stick solve of B presses: held (B, *layer.shape) bool, each a non-empty contact; force (B, 2) N the
     tangential load; depths (B,) mm, the plane each body holds the gel on (None: the surface; see
-    `Layer.coupled`). Returns numpy arrays: fields (B, 3, H, W) = (ux, uy, depth) mm, s (B, 2) the body's
-    displacement in mm, iterations (B,). The CG stops when the rms displacement error on the contact is below
-    tol x |s| (the reference's tolerance per mm of displacement)."""
+    `Layer.coupled`); windows (B, 5) (`windows` of the contacts): each press's conjugate gradients run on its
+    window (None: the whole grid). Returns numpy arrays on the whole grid: fields (B, 3, H, W) = (ux, uy, depth)
+    mm, s (B, 2) the body's displacement in mm, iterations (B,). The CG stops when the rms displacement error on
+    the contact is below tol x |s| (the reference's tolerance per mm of displacement)."""
     held, force = np.asarray(held, bool), np.asarray(force, np.float32)
     depths = np.zeros(len(held)) if depths is None else np.asarray(depths, np.float64)
-    run = _stick_program(float(layer.dx) ** 2, float(tol), int(max_iter))
-    for d in np.unique(depths):  # each depth's kernels built once, before the threads read them
-        layer.coupled(float(d))
+    groups = [(0, np.arange(len(held)))] if windows is None else _groups(windows)
+    for side, idx in groups:  # each grid's and depth's kernels built once, before the threads read them
+        for d in np.unique(depths[idx]):
+            _hold_kernels(layer, side, [d])
+    traction = np.zeros((len(held), 3) + layer.shape, np.float32)
+    iterations = np.empty(len(held), np.int32)
+    run = _traction_program(float(layer.dx) ** 2, float(tol), int(max_iter))
+    for side, idx in groups:
+        h = np.stack([_into_window(held[i], w, False) for i, w in zip(idx, windows[idx])]) if side else held[idx]
+        f, d = force[idx], depths[idx]
+        parts = _solve_pieces(lambda a, b, m: run(_padded(h[a:b], m), _padded(f[a:b], m),  # noqa: B023
+                                                  _hold_kernels(layer, side, _padded(d[a:b], m))), len(idx))  # noqa: B023
+        r = _joined(parts, len(idx), ("t", "iterations"))
+        iterations[idx] = r["iterations"]
+        traction[idx] = [_out_of_window(t, w, layer.shape) for t, w in zip(r["t"], windows[idx])] if side else r["t"]
+    parts = _solve_pieces(lambda a, b, m: _fields_program(_padded(held[a:b], m), _padded(traction[a:b], m),
+                                                          _depth_kernels(layer, _padded(depths[a:b], m), 0),
+                                                          _depth_kernels(layer, _padded(depths[a:b], m), 1)),
+                          len(held))
+    return {**_joined(parts, len(held), ("fields", "s")), "iterations": iterations}
 
-    def piece(a, b, m):
-        kernels = [layer.coupled(float(d)) for d in _padded(depths[a:b], m)]
-        hold, surface = (np.stack([np.stack(k[j]) for k in kernels]) for j in (0, 1))  # (m, 8, H, W // 2 + 1)
-        return run(_padded(held[a:b], m), _padded(force[a:b], m), hold, surface)
 
-    parts = _solve_pieces(piece, len(held))
-    return {k: np.concatenate([np.asarray(part[i])[: b - a] for part, (a, b, _) in zip(parts, _pieces(len(held)))])
-            for i, k in enumerate(("fields", "s", "iterations"))}
+WINDOW_SIDES = (32, 48, 64, 80, 96, 120)  # sides of the windowed solves' grids (5-smooth: fast FFTs); few: few programs
+
+
+def windows(masks: np.ndarray, margin: int = 0) -> np.ndarray:
+    """(B, 5) = (y0, x0, h, w, side): for each mask (B, H, W), each non-empty, its region (the bounding box grown by
+    `margin` cells on every side, inside the grid) and the side of the square window its solve runs on: the
+    smallest of WINDOW_SIDES at least twice the region's extent less one, else 0 (the whole grid).
+
+    A window solve is the whole grid's solve restricted to the region: every load lives there, and the window's
+    kernels (`_aperiodic`) are the layer's, periodic images and all, at every offset between two cells of the
+    region, the window wide enough that its own images never fold onto the region. So it agrees with the whole
+    grid's to round-off, at a fraction of the FFTs."""
+    masks = np.asarray(masks, bool)
+    _, H, W = masks.shape
+    out = np.zeros((len(masks), 5), np.int64)
+    for i, m in enumerate(masks):
+        ys, xs = np.nonzero(m.any(1))[0], np.nonzero(m.any(0))[0]
+        y0, x0 = max(ys[0] - margin, 0), max(xs[0] - margin, 0)
+        h, w = min(ys[-1] + margin + 1, H) - y0, min(xs[-1] + margin + 1, W) - x0
+        side = next((s for s in WINDOW_SIDES if s >= 2 * max(h, w) - 1 and s < min(H, W)), 0)
+        out[i] = y0, x0, h, w, side
+    return out
+
+
+def _region(window) -> tuple[slice, slice]:
+    y0, x0, h, w, _ = (int(v) for v in window)
+    return slice(y0, y0 + h), slice(x0, x0 + w)
+
+
+def _into_window(x: np.ndarray, window, fill) -> np.ndarray:
+    """The region of the grid x at the corner of a window's grid, `fill` elsewhere."""
+    side = int(window[4])
+    out = np.full((side, side), fill, x.dtype)
+    out[: window[2], : window[3]] = x[_region(window)]
+    return out
+
+
+def _out_of_window(x: np.ndarray, window, shape) -> np.ndarray:
+    """A window's solution x (..., side, side) on the grid of `shape`: its region in place, 0 elsewhere."""
+    out = np.zeros(x.shape[:-2] + tuple(shape), x.dtype)
+    out[(...,) + _region(window)] = x[..., : window[2], : window[3]]
+    return out
+
+
+def _groups(windows: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """The presses of each window side (0: the whole grid): [(side, indices)], one batch of solves each."""
+    sides = windows[:, 4]
+    return [(int(s), np.flatnonzero(sides == s)) for s in np.unique(sides)]
+
+
+def _aperiodic(kernel: np.ndarray, shape: tuple[int, int], side: int, odd: bool) -> np.ndarray:
+    """A kernel of the (H, W) grid (on its rfft2 grid, real; odd: the imaginary part of an imaginary one) on a
+    side x side window: its real-space values at the offsets below side / 2, the rest 0, transformed back."""
+    g = np.fft.irfft2(kernel.astype(np.float64) * (1j if odd else 1.0), s=shape)
+    o = np.arange(side)
+    o = np.where(o <= side // 2, o, o - side)
+    keep = (np.abs(o) < side / 2).astype(np.float64)
+    f = np.fft.rfft2(g[np.ix_(o % shape[0], o % shape[1])] * keep[:, None] * keep[None, :])
+    return (f.imag if odd else f.real).astype(np.float32)
+
+
+@functools.lru_cache(maxsize=16)
+def _window_kernel(layer: Layer, side: int):
+    """The layer's normal compliance on a window of `side` (`_aperiodic`), on the device."""
+    return jnp.asarray(_aperiodic(layer.kernel, layer.shape, side, False))
+
+
+@functools.lru_cache(maxsize=1024)
+def _window_coupled(layer: Layer, side: int, depth: float) -> tuple:
+    """The coupled kernels on the held plane at `depth` (`Layer.coupled(depth)[0]`) on a window of `side`: the
+    four direct ones even, the four couplings odd."""
+    return tuple(_aperiodic(k, layer.shape, side, j >= 4) for j, k in enumerate(layer.coupled(depth)[0]))

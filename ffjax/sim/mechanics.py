@@ -33,6 +33,7 @@ from ffjax.sim import batched, elastic_layer
 
 MAX_STRAIN = 0.9  # presses needing a deeper compression than this x thickness are refused (gel bottoms out)
 SOLVE_MARGIN_T = 2.0  # layer beyond the pad in the solve, x thickness: its response decays over ~t
+NESTED_MARGIN_PX = 2  # room around the contact a lighter press of the same body is solved in (`within`)
 _EPS = np.linspace(0.0, 0.98, 4096)  # compressive strain table for psi and its inverse
 _PSI = ((1.0 - _EPS) ** -2 - (1.0 - _EPS)) / 3.0
 _OUTER_TOL = 1e-4  # fixed point on the approach: stop when it moves less than this x thickness
@@ -82,6 +83,14 @@ def _padded_layer(size: tuple[int, int], mm_per_px: float, thickness: float, she
                      float(shear_mpa))
 
 
+def _windows(masks, m: int, layer, margin: int = 0) -> np.ndarray:
+    """`batched.windows` of pad masks (B, H, W) on the padded layer's grid (the pad at offset m)."""
+    B, H, W = masks.shape
+    full = np.zeros((B,) + layer.shape, bool)
+    full[:, m:m + H, m:m + W] = masks
+    return batched.windows(full, margin)
+
+
 @dataclasses.dataclass
 class Normal:
     delta: float  # approach (mm) from the first touch: the deepest compression
@@ -102,10 +111,13 @@ def solve_normal(h: np.ndarray, mm_per_px: float, shear_mpa: float, thickness: f
 
 
 def solve_normal_batch(hs, mm_per_px: float, shear_mpa: float, thickness: float, fzs,
-                       reference: bool = False) -> list:
+                       reference: bool = False, within=None) -> list:
     """solve_normal for B presses on one pad grid (hs (B, H, W), fzs (B,)): a Normal per press, or the
     ValueError it raises. The layer solves run batched on the device (`ffjax.sim.batched`); reference=True runs
-    the numpy reference (`elastic_layer.solve_contact`, one press at a time), which they agree with."""
+    the numpy reference (`elastic_layer.solve_contact`, one press at a time), which they agree with.
+    within (B, H, W) bool: where each contact is known to lie (the contact of the same body at the same pose pressed
+    harder: contacts grow with the load), each solve kept to it and NESTED_MARGIN_PX cells around and run on a
+    window (`batched.windows`); None: the whole grid."""
     hs = np.asarray(hs, np.float64)
     B, H, W = hs.shape
     out: list = [None] * B
@@ -128,11 +140,12 @@ def solve_normal_batch(hs, mm_per_px: float, shear_mpa: float, thickness: float,
         solved = [_reference_normal(hb, f, layer, thickness) for hb, f in zip(hbs, fz)]
         delta, u, p = (np.stack([r[k] for r in solved]) for k in range(3))
     else:
-        r = batched.normal(np.stack(hbs), fz, layer, thickness, _EPS, _PSI, MAX_STRAIN * thickness)
+        wins = None if within is None else _windows(np.asarray(within, bool)[todo], m, layer, NESTED_MARGIN_PX)
+        r = batched.normal(np.stack(hbs), fz, layer, thickness, _EPS, _PSI, MAX_STRAIN * thickness, windows=wins)
         delta, u, p = r["delta"].astype(np.float64), r["u"], r["p"]
     inner = (slice(None), slice(m, m + H), slice(m, m + W))
     hb = np.stack(hbs)
-    surface = np.maximum(soften(u, thickness), delta[:, None, None] - hb)[inner]  # never inside the body
+    surface = np.maximum(soften(u[inner], thickness), delta[:, None, None] - hb[inner])  # never inside the body
     for j, i in enumerate(todo):
         if delta[j] > MAX_STRAIN * thickness:
             out[i] = ValueError(
@@ -275,7 +288,7 @@ def _stick(contacts, forces, depths, mm_per_px: float, shear_mpa: float, thickne
             fields.append(s[-1][0] * r["fields"][0] + s[-1][1] * r["fields"][1])
         fields, s = np.stack(fields), np.stack(s)
     else:
-        r = batched.stick(held, forces, layer, depths)
+        r = batched.stick(held, forces, layer, depths, windows=_windows(contacts, m, layer))
         fields, s = r["fields"], r["s"].astype(np.float64)
     return fields[:, :, m:m + H, m:m + W], s
 
@@ -328,8 +341,9 @@ def oblique_batch(hs, mm_per_px: float, shear_mpa: float, thickness: float, fric
     if not todo:
         return normals, shears
     frac = ((np.arange(steps) + 0.5) / steps) ** 1.5  # middle forces: the approach grows ~ F^(2/3)
-    mids = solve_normal_batch(np.repeat(hs[todo], steps, 0), mm_per_px, shear_mpa, thickness,
-                              np.outer([fzs[i] for i in todo], frac).ravel(), reference)
+    mids = solve_normal_batch(np.repeat(hs[todo], steps, 0), mm_per_px, shear_mpa, thickness,  # inside the final
+                              np.outer([fzs[i] for i in todo], frac).ravel(), reference,  # contact: nested
+                              np.repeat(np.stack([normals[i].contact for i in todo]), steps, 0))
     loads, contacts, depths = [], [], []
     for k, i in enumerate(todo):
         fz, mid = float(fzs[i]), mids[k * steps:(k + 1) * steps]
