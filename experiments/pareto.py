@@ -385,20 +385,17 @@ def _shown(r: dict) -> str:
 def seeds_said(results: dict, names: bool = False) -> str:
     """The cells' seeds in words, from what each cell records (its seeds, and which of its runs the ablation's):
     e.g. "0 for the cells trained here; 0-2 for the cells reused from the ablation" (names: the cells of each
-    group in brackets). A results.json without `reused_ablation_runs`: a cell with seeds beyond the run's own
-    (`seeds`) has them from the ablation."""
-    own = {int(k) for k in results.get("seeds", [])}
-    known = "reused_ablation_runs" in results
-    reused_runs = set(results.get("reused_ablation_runs") or [])
+    group in brackets). ValueError naming the key for a results.json without `reused_ablation_runs` (written before
+    it was recorded)."""
+    if "reused_ablation_runs" not in results:
+        raise ValueError("pareto results.json has no 'reused_ablation_runs' (written before it was recorded): run "
+                         "experiments.pareto again to record which cells' runs were the ablation's")
+    reused_runs = set(results["reused_ablation_runs"])
     cells = {}
     for r in results["cells"]:
-        seeds = [int(k) for k in r.get("seeds", sorted(own))]
-        if known:
-            flags = [d in reused_runs for d in r.get("runs", [])]
-            reused = True if flags and all(flags) else False if not any(flags) else None
-        else:
-            reused = bool(set(seeds) - own)
-        cells[_shown(r)] = (seeds, reused)
+        flags = [d in reused_runs for d in r.get("runs", [])]
+        reused = True if flags and all(flags) else False if not any(flags) else None
+        cells[_shown(r)] = ([int(k) for k in r.get("seeds", results["seeds"])], reused)
     return tables.seeds_text(cells, here="the cells trained here", names=", ".join if names else None)
 
 

@@ -29,7 +29,11 @@ def replot(folder) -> str:
     if exp is None or exp.replot is None:
         known = ", ".join(e.module for e in catalog.EXPERIMENTS if e.replot)
         raise ValueError(f"{folder}: results.json is not from an experiment that re-renders ({known})")
-    exp.replot(results, folder)
+    try:
+        exp.replot(results, folder)
+    except (KeyError, ValueError) as e:  # e.g. a key the figures need that an old results.json lacks: name the file
+        said = f"{folder / 'results.json'}: {e.args[0] if e.args else e}"
+        raise (KeyError if isinstance(e, KeyError) else ValueError)(said) from e
     # the commit it was drawn with (status: "replot" until the figures' sources change again); the numbers'
     # commit stays. Read again: a re-render may rewrite results.json (the ablation's findings).
     drawn = common.read_json(folder / "results.json") or results

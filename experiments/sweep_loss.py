@@ -225,22 +225,16 @@ def _seed_text(results: dict) -> str:
 
 def _cells(results: dict) -> dict:
     """{beta: (seeds, reused)} for tables.seeds_text: reused True when every run of the beta is the ablation's, False
-    when none is, None when some are. A results.json from before `reused` was recorded: a beta with seeds beyond the
-    sweep's own came from the ablation (only its runs add seeds), and so did every beta whose runs sit in the same
-    experiment folder (<folder>/runs/<method>/seed<k>) as such a beta's."""
-    pb, own = results["per_beta"], {int(s) for s in results.get("seeds", [])}
-
-    def seeds(v):
-        return v.get("seeds") or sorted(own)[: len(v["per_seed"])]
-
-    def folder(d):
-        return str(Path(d).parents[2]) if len(Path(d).parents) > 2 else ""
-
-    abl = {folder(d) for v in pb.values() if set(map(int, seeds(v))) - own for d in v.get("run_dirs", [])}
+    when none is, None when some are, as each beta's `seeds` and `reused` record (ValueError naming the key where a
+    results.json lacks one: one written before they were recorded says nothing to go by)."""
     out = {}
-    for k, v in pb.items():
-        flags = v.get("reused") or [folder(d) in abl for d in v.get("run_dirs", [])]
-        out[k] = (seeds(v), True if flags and all(flags) else False if not any(flags) else None)
+    for k, v in results["per_beta"].items():
+        missing = [key for key in ("seeds", "reused") if key not in v]
+        if missing:
+            raise ValueError(f"sweep_loss results.json: per_beta[{k!r}] has no {' or '.join(map(repr, missing))} "
+                             "(written before they were recorded): run experiments.sweep_loss again to record them")
+        flags = v["reused"]
+        out[k] = (v["seeds"], True if flags and all(flags) else False if not any(flags) else None)
     return out
 
 

@@ -151,19 +151,22 @@ def test_stability_solves_levels_that_share_presses_once_with_the_same_frames(mo
 
 
 def test_sweep_says_which_betas_have_which_seeds():
-    """The sweep's own betas are seed 0, the betas reused from the ablation 0-2: said per group, not as the union;
-    a results.json from before `reused` was recorded reads the same from its run folders."""
+    """The sweep's own betas are seed 0, the betas reused from the ablation 0-2: said per group, not as the union,
+    from what each beta records; a results.json from before `reused` was recorded is refused by name, not guessed."""
     def beta(seeds, folder, method):
-        return {"seeds": seeds, "per_seed": [{}] * len(seeds),
+        return {"seeds": seeds, "per_seed": [{}] * len(seeds), "reused": [folder == "ablation"] * len(seeds),
                 "run_dirs": [f"/r/{folder}/runs/{method}/seed{k}" for k in seeds]}
 
     res = {"seeds": [0], "per_beta": {"0": beta([0, 1, 2], "ablation", "dino_r"), "1": beta([0], "sweep", "b1"),
                                       "10": beta([0, 1, 2], "ablation", "dino_rd"), "30": beta([0], "sweep", "b30")}}
     want = "0 for the sweep's own cells (beta 1, 30); 0-2 for the cells reused from the ablation (beta 0, 10)"
     assert sweep_loss.seeds_said(res, names=True) == want
-    for k, v in res["per_beta"].items():
-        v["reused"] = [k in ("0", "10")] * len(v["seeds"])
-    assert sweep_loss.seeds_said(res, names=True) == want
+    res["per_beta"]["10"]["reused"] = [True, False, True]
+    assert sweep_loss.seeds_said(res) == ("0 for the sweep's own cells; 0-2 for the cells partly reused from the "
+                                          "ablation and the cells reused from the ablation")
+    del res["per_beta"]["30"]["reused"]
+    with pytest.raises(ValueError, match=r"per_beta\['30'\] has no 'reused'"):
+        sweep_loss.seeds_said(res)
 
 
 def test_downstream_names_the_checkpoint_a_figure_shows():

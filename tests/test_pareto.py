@@ -1,6 +1,8 @@
 """experiments.pareto: the Pareto front on hand-made points, the grid and the size configs. Its smoke run is part
 of the whole pipeline's test (test_reproduce.py). No timed assertions: the machine is shared."""
 
+import pytest
+
 from experiments import common, pareto
 
 
@@ -72,6 +74,9 @@ def test_seeds_said_tells_own_cells_from_the_ablations():
                                                   "0-2 for the cells reused from the ablation (DINO R vit-s)")
     res["cells"][1]["seeds"], res["cells"][1]["runs"] = [0], abl[:1]
     assert pareto.seeds_said(res) == "0"  # every cell alike: just the seeds
+    del res["reused_ablation_runs"]  # a results.json from before it was recorded: refused by name, not guessed
+    with pytest.raises(ValueError, match="reused_ablation_runs"):
+        pareto.seeds_said(res)
 
 
 def test_seed_span():
