@@ -238,10 +238,10 @@ def render_sets(cfg: dict, jobs, n: int, progress: bool = False) -> dict:
         frame_sensor, bg_sensor = sensors_for(f.name, f.levels[li], nominal)
         p = presses(cfg, f, li, n, nominal)
         bodies = tuple(p["shapes"][k] for k in p["shape_index"])
-        key = (tuple(b if isinstance(b, str) else id(b) for b in bodies), loading(cfg, f),
-               sim.mechanics_key(frame_sensor),
+        path = loading(cfg, f)
+        key = (tuple(b if isinstance(b, str) else id(b) for b in bodies), path, sim.mechanics_key(frame_sensor),
                *(np.asarray(p[k]).tobytes() for k in ("force", "x_mm", "y_mm", "yaw_deg", "tilt_deg", "seed")))
-        groups.setdefault(key, []).append(((f.name, li), p, bodies, frame_sensor, bg_sensor, loading(cfg, f)))
+        groups.setdefault(key, []).append(((f.name, li), p, bodies, frame_sensor, bg_sensor, path))
     H, W = size
     sets = {}
     with tqdm(total=len(jobs), desc="render test sets", disable=not progress) as bar:
