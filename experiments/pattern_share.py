@@ -161,6 +161,26 @@ def _table(results: dict) -> tuple[list, list, list]:
     return header, rows, [csv_header, csv_rows]
 
 
+def seeds_said(results: dict) -> str:
+    """The cells' seeds in words (tables.seed_groups), by share: '0-2' where every cell has the same seeds, else
+    e.g. '0 at shares 0, 1; 0-2 at share 0.5' (the preset's share has the ablation's seeds); a share whose methods
+    differ names them, e.g. 'share 0.5 (DINO RD)'."""
+    cells = {(k, m): (v["seeds"], False) for k in _shares(results)
+             for m, v in results["per_share"][k]["methods"].items()}
+    groups = tables.seed_groups(cells)
+    if len(groups) <= 1:
+        return groups[0][0] if groups else "none"
+    said = []
+    for span, _, labels in groups:
+        shares = []
+        for k in dict.fromkeys(k for k, _ in labels):  # in share order
+            mine = [m for kk, m in labels if kk == k]
+            whole = len(mine) == len(results["per_share"][k]["methods"])
+            shares.append(k if whole else f"{k} ({', '.join(map(style.name, mine))})")
+        said.append(f"{span} at share{'s' if len(shares) > 1 else ''} {', '.join(shares)}")
+    return "; ".join(said)
+
+
 def write_all(results: dict, out: Path) -> None:
     header, rows, (csv_header, csv_rows) = _table(results)
     text = (f"# Table II by the moving share of the fixed pattern (preset {results['preset']}, commit "
@@ -228,8 +248,7 @@ def plot(results: dict, path: Path) -> Path:
         ax.legend(fontsize=7)
     fig.suptitle(f"Table II by the moving share of the fixed pattern (0: all the camera's, stays; 1: all pigment, "
                  f"moves with the gel; preset {results['preset']})", fontsize=10)
-    seeds = sorted({int(s) for c in results["per_share"].values() for v in c["methods"].values() for s in v["seeds"]})
-    common.stamp(fig, results["preset"], seeds, results.get("commit", "?"))
+    common.stamp(fig, results["preset"], [], results.get("commit", "?"), seeds_text=seeds_said(results))
     return tables.save_png(fig, Path(path))
 
 

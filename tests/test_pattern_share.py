@@ -44,6 +44,8 @@ def test_finding_and_figure(tmp_path):
     for f in ("pattern_share.md", "pattern_share.csv", "pattern_share.png", "results.json"):
         assert (Path(tmp_path) / f).stat().st_size > 0
     assert "| 0.5 | DINO RD | 3 |" in (tmp_path / "pattern_share.md").read_text()
+    # the footer's seeds per cell, not their union over cells of one seed and of three
+    assert ps.seeds_said(results) == "0 at shares 0, 1; 0-2 at share 0.5"
 
 
 def test_shares_read_in_order_whatever_order_they_ran():
