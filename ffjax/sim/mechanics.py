@@ -341,9 +341,12 @@ def oblique_batch(hs, mm_per_px: float, shear_mpa: float, thickness: float, fric
     if not todo:
         return normals, shears
     frac = ((np.arange(steps) + 0.5) / steps) ** 1.5  # middle forces: the approach grows ~ F^(2/3)
-    mids = solve_normal_batch(np.repeat(hs[todo], steps, 0), mm_per_px, shear_mpa, thickness,  # inside the final
-                              np.outer([fzs[i] for i in todo], frac).ravel(), reference,  # contact: nested
-                              np.repeat(np.stack([normals[i].contact for i in todo]), steps, 0))
+    by_step, inside = [None] * steps, [normals[i].contact for i in todo]
+    for j in reversed(range(steps)):  # heaviest first: each lighter press lies inside the contact of the one before
+        by_step[j] = solve_normal_batch(hs[todo], mm_per_px, shear_mpa, thickness, [fzs[i] * frac[j] for i in todo],
+                                        reference, np.stack(inside))
+        inside = [n.contact if isinstance(n, Normal) and n.contact.any() else c for n, c in zip(by_step[j], inside)]
+    mids = [by_step[j][k] for k in range(len(todo)) for j in range(steps)]
     loads, contacts, depths = [], [], []
     for k, i in enumerate(todo):
         fz, mid = float(fzs[i]), mids[k * steps:(k + 1) * steps]
