@@ -24,8 +24,8 @@ from ffjax import registry
 
 def main(argv=None) -> dict:
     ap = common.base_parser(__doc__.strip().splitlines()[0],
-                            costs={"quick": "~46 min on a 2-core Zen 4 VM with its dataset (11 min), 3 seeds",
-                                   "full": "52 min (3 seeds, before issue 13)"})
+                            costs={"quick": "every method, 3 seeds, its dataset made first where missing",
+                                   "full": "every method, 3 seeds"})
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
                     help=f"registry names (default: the paper set {', '.join(registry.PAPER_SET)})")
     ap.add_argument("--seeds", type=int, default=None,

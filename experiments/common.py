@@ -32,15 +32,45 @@ def prog() -> str | None:
     return f"python -m {spec.name}" if spec is not None and spec.name else None
 
 
-def base_parser(description: str, default_preset: str = "quick", costs: dict | None = None) -> argparse.ArgumentParser:
-    """The experiments' shared flags. costs: {preset: measured wall time on the 2-core VM}, shown in --help and
-    said at the start of a run, so nobody starts a half-hour job without knowing."""
+def measured_cost(experiment: str, preset: str) -> str | None:
+    """What the published run of `experiment` at `preset` took, read from its own record
+    (docs/results/<preset>/reproduce.json: wall time, commit, machine), e.g. "measured 10 min at 496429f on AMD EPYC
+    (family 25, model 17), 2 cores"; None where none is published (or it was not run afresh there). Read, never
+    written into the source: a new run's time does not make the experiments' code stale."""
+    record = ROOT / "docs" / "results" / preset / "reproduce.json"
+    try:
+        run = json.loads(record.read_text())
+        this, machine = run["experiments"][experiment], run.get("machine", {})
+        if not this.get("fresh", True) or not this.get("wall_s"):
+            return None
+        minutes = float(this["wall_s"]) / 60
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    on = f" on {machine['cpu_model']}, {machine['cores']} cores" if {"cpu_model", "cores"} <= set(machine) else ""
+    return (f"measured {minutes:.0f} min at {str(this.get('commit', run.get('commit', '?')))[:7]}{on} "
+            f"({record.relative_to(ROOT)})")
+
+
+def base_parser(description: str, default_preset: str = "quick", costs: dict | None = None,
+                experiment: str | None = None) -> argparse.ArgumentParser:
+    """The experiments' shared flags. costs: {preset: what a run does, in words (no timings: those go stale)},
+    shown in --help and said at the start of a run with the published run's measured time where one is recorded
+    (measured_cost), so nobody starts a half-hour job without knowing. experiment: its name in the published
+    record (default: the calling module's last name, e.g. "sweep_loss")."""
+    if experiment is None:
+        caller = sys._getframe(1).f_globals
+        spec = caller.get("__spec__")
+        experiment = (spec.name if spec is not None and spec.name else caller.get("__name__", "")).rsplit(".", 1)[-1]
     costs = {"smoke": "a minute or two, numbers meaningless", **(costs or {})}
+    for preset in configs.PRESETS:
+        measured = measured_cost(experiment, preset) if preset != "smoke" else None
+        if measured:
+            costs[preset] = f"{costs[preset]}; {measured}" if preset in costs else measured
     ap = argparse.ArgumentParser(prog=prog(), description=description)
     ap.set_defaults(_costs=costs)
     ap.add_argument("--preset", default=default_preset, choices=configs.PRESETS,
-                    help=f"size of data, models and training (default: {default_preset}). Measured on a 2-core "
-                         "CPU: " + "; ".join(f"{k}: {v}" for k, v in costs.items()))
+                    help=f"size of data, models and training (default: {default_preset}). Cost: "
+                         + "; ".join(f"{k}: {v}" for k, v in costs.items()))
     ap.add_argument("--out", default=None, help="results folder (default: results/<experiment>-<preset>)")
     ap.add_argument("--data", default=None, help="dataset folder (default: data/<preset>, made if missing)")
     ap.add_argument("--force", action="store_true", help="redo cached stages even when their config matches")
@@ -60,7 +90,7 @@ def config_from_args(ap, args) -> dict:
         cli.check_out(ap, args.out)
     git_commit()  # the code this run loaded, recorded before any work
     cost = getattr(args, "_costs", {}).get(args.preset)
-    print(f"{prog() or 'experiment'}: preset {args.preset}" + (f" (measured: {cost})" if cost else "")
+    print(f"{prog() or 'experiment'}: preset {args.preset}" + (f" ({cost})" if cost else "")
           + ("" if args.preset == "smoke" else "; --preset smoke for a quick check"), file=sys.stderr)
     return cfg
 

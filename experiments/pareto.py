@@ -65,7 +65,7 @@ AXIS_LABELS = {"latency_b1_ms": "inference latency, batch 1 (ms)", "train_img_s"
 
 def main(argv=None) -> dict:
     ap = common.base_parser(__doc__.strip().splitlines()[0],
-                            costs={"quick": "~15 min reusing an ablation's runs (--ablation; 2-core Zen 4 VM)"})
+                            costs={"quick": "reuses an ablation's runs (--ablation)"})
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
                     help=f"registry names (default: the paper set {', '.join(registry.PAPER_SET)})")
     ap.add_argument("--sizes", nargs="+", default=None, metavar="SIZE", help=f"of {', '.join(SIZES)} (default: all)")

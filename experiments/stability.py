@@ -354,7 +354,7 @@ def seed_spread(evals: dict) -> dict:
 
 def main(argv=None) -> dict:
     ap = common.base_parser(__doc__.strip().splitlines()[0],
-                            costs={"quick": "~12 min reusing an ablation's 15 runs (--ablation; 2-core Zen 4 VM)"})
+                            costs={"quick": "reuses an ablation's 15 runs (--ablation)"})
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
                     help="registry names (default: the ablation's methods, else the paper set)")
     ap.add_argument("--ablation", default=None, help="ablation results folder (default: results/ablation-<preset>)")

@@ -176,3 +176,24 @@ def test_downstream_names_the_checkpoint_a_figure_shows():
     assert downstream_report.first_checkpoint(res, "dino_rd") == "one DINO RD checkpoint (seed 2)"
     res = {"checkpoints": {"dino_rd": ["/r/runs/quick-dino_rd"]}}
     assert downstream_report.first_checkpoint(res, "dino_rd") == "one DINO RD checkpoint (quick-dino_rd)"
+
+
+def test_help_costs_come_from_the_published_record(tmp_path, monkeypatch):
+    """--help's measured time is read from docs/results/<preset>/reproduce.json, not written in the source; none
+    published (or not run afresh): the plain description alone."""
+    import json
+
+    from experiments import common
+
+    rec = tmp_path / "docs" / "results" / "quick" / "reproduce.json"
+    rec.parent.mkdir(parents=True)
+    rec.write_text(json.dumps({"commit": "c" * 40, "machine": {"cpu_model": "CPU X", "cores": 2},
+                               "experiments": {"sweep_loss": {"wall_s": 597.8, "fresh": True, "commit": "a" * 40},
+                                               "pattern_share": {"wall_s": 2.4, "fresh": False}}}))
+    monkeypatch.setattr(common, "ROOT", tmp_path)
+    assert common.measured_cost("sweep_loss", "quick") == ("measured 10 min at aaaaaaa on CPU X, 2 cores "
+                                                           "(docs/results/quick/reproduce.json)")
+    assert common.measured_cost("pattern_share", "quick") is None
+    assert common.measured_cost("sweep_loss", "full") is None
+    costs = common.base_parser("x", costs={"quick": "reuses runs"}, experiment="sweep_loss").get_default("_costs")
+    assert costs["quick"].startswith("reuses runs; measured 10 min")

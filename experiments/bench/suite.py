@@ -491,7 +491,11 @@ def ratios(res: dict) -> dict:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m experiments.bench", description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="the ~minutes version (fewer rounds, smaller sweeps)")
+    from experiments import common
+
+    measured = common.measured_cost("bench", "quick")
+    ap.add_argument("--quick", action="store_true", help="the ~minutes version (fewer rounds, smaller sweeps)"
+                    + (f"; {measured}" if measured else ""))
     ap.add_argument("--smoke", action="store_true", help="tiny sizes, seconds (tests); numbers mean nothing")
     ap.add_argument("--out", default=None, help="results folder (default results/bench-<mode>)")
     ap.add_argument("--torch-python", default=None,

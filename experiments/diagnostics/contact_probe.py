@@ -190,7 +190,7 @@ def plot(r: dict, path: Path) -> Path:
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "~1.5 min"})
+    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "simulator only, no training"})
     ap.add_argument("--per-shape", type=int, default=None, help="presses per shape (default by preset)")
     args = ap.parse_args(argv)
     cfg = common.config_from_args(ap, args)

@@ -260,7 +260,7 @@ def plot(r: dict, path: Path) -> Path:
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "~1 min"})
+    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "simulator only, no training"})
     args = ap.parse_args(argv)
     cfg = common.config_from_args(ap, args)
     out = Path(args.out or common.ROOT / "results" / f"layer_check-{args.preset}")

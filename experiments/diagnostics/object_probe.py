@@ -176,7 +176,7 @@ def plot(res: dict, path: Path) -> None:
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "3 min with two runs"})
+    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "reads two trained runs"})
     ap.add_argument("--runs", nargs="*", default=[], help="training run folders (e.g. results/ablation-quick/runs/"
                     "dino_rd/seed0) whose read-out to measure")
     args = ap.parse_args(argv)
