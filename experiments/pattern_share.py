@@ -249,7 +249,7 @@ def plot(results: dict, path: Path) -> Path:
     fig.suptitle(f"Table II by the moving share of the fixed pattern (0: all the camera's, stays; 1: all pigment, "
                  f"moves with the gel; preset {results['preset']})", fontsize=10)
     common.stamp(fig, results["preset"], [], results.get("commit", "?"), seeds_text=seeds_said(results))
-    return tables.save_png(fig, Path(path))
+    return tables.save_png(fig, Path(path), bottom=0.015)  # the footer, under the right panel's x label, clear of it
 
 
 if __name__ == "__main__":

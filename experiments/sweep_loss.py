@@ -318,7 +318,7 @@ def plot(results: dict, path: Path) -> Path:
     fig.suptitle(f"Loss-weight sweep ({style.name(results['base'])}, preset {results['preset']}, "
                  f"{_seed_text(results)})", fontsize=10)
     common.stamp(fig, results["preset"], [], results.get("commit", "?"), seeds_text=seeds_said(results))
-    return tables.save_png(fig, Path(path))
+    return tables.save_png(fig, Path(path), bottom=0.015)  # the footer, under the right panel's x label, clear of it
 
 
 if __name__ == "__main__":

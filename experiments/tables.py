@@ -296,12 +296,13 @@ def _hatches(t1: dict) -> dict:
     return out
 
 
-def save_png(fig, path: Path, then=None) -> Path:
+def save_png(fig, path: Path, then=None, bottom: float = 0.0) -> Path:
     """Tight layout (the axes below the figure's title), atomic write (tmp + rename), close. then: called with no
-    arguments once the layout is final, before the write (e.g. common.label_points, which needs the layout)."""
+    arguments once the layout is final, before the write (e.g. common.label_points, which needs the layout).
+    bottom: a strip kept free below the axes (figure fraction), e.g. for a footer (the stamp) under a long x label."""
     import matplotlib.pyplot as plt
 
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, bottom, 1, 1))
     title = _suptitle(fig)  # on a tall grid tight_layout can put the top row's titles under the figure's title
     if title is not None:
         renderer = fig.canvas.get_renderer()
@@ -309,7 +310,7 @@ def save_png(fig, path: Path, then=None) -> Path:
         axes = [ax for ax in fig.axes if ax.get_visible()]
         top = max((ax.get_tightbbox(renderer).y1 / fig.bbox.height for ax in axes), default=0.0)
         if top > below - 0.005:
-            fig.tight_layout(rect=(0, 0, 1, below - 0.01))
+            fig.tight_layout(rect=(0, bottom, 1, below - 0.01))
     if then is not None:
         then()
     tmp = path.with_name(f".{path.stem}.tmp.png")
