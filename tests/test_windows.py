@@ -86,3 +86,13 @@ def test_oblique_press_solves_lighter_presses_inside_the_final_contact():
     assert np.allclose(a.force, b.force, rtol=1e-3, atol=1e-4)
     assert np.abs(a.depth - b.depth).max() < 1e-3  # mm
     assert np.abs(a.image.astype(int) - b.image).max() <= 1
+
+
+def test_a_press_touching_beyond_its_reach_is_solved_again_on_the_whole_grid(monkeypatch):
+    sensor = sim.get_sensor("mini-1-gel1")
+    press = dict(shape="sphere_small", sensor=sensor, force=(0, 0, 6.0), size=(24, 32))
+    whole = sim.press(**press)
+    monkeypatch.setattr(mechanics, "REACH", 1e-9)  # the window holds the lowest cell only: the check must catch it
+    again = sim.press(**press)
+    assert np.abs(again.depth - whole.depth).max() < 1e-6
+    assert abs(again.meta["penetration_mm"] - whole.meta["penetration_mm"]) < 1e-5  # mm: within the solve's tolerance

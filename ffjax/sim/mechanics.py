@@ -34,6 +34,10 @@ from ffjax.sim import batched, elastic_layer
 MAX_STRAIN = 0.9  # presses needing a deeper compression than this x thickness are refused (gel bottoms out)
 SOLVE_MARGIN_T = 2.0  # layer beyond the pad in the solve, x thickness: its response decays over ~t
 NESTED_MARGIN_PX = 2  # room around the contact a lighter press of the same body is solved in (`within`)
+# How high above its lowest point a body can touch the gel, x MAX_STRAIN x thickness: the deepest approach the gel
+# takes and the free surface's rise around a contact. A press is solved on a window around that part of its body,
+# and solved again on the whole grid if its solution presses the gel through the body beyond it (checked).
+REACH = 1.3
 _EPS = np.linspace(0.0, 0.98, 4096)  # compressive strain table for psi and its inverse
 _PSI = ((1.0 - _EPS) ** -2 - (1.0 - _EPS)) / 3.0
 _OUTER_TOL = 1e-4  # fixed point on the approach: stop when it moves less than this x thickness
@@ -140,8 +144,17 @@ def solve_normal_batch(hs, mm_per_px: float, shear_mpa: float, thickness: float,
         solved = [_reference_normal(hb, f, layer, thickness) for hb, f in zip(hbs, fz)]
         delta, u, p = (np.stack([r[k] for r in solved]) for k in range(3))
     else:
-        wins = None if within is None else _windows(np.asarray(within, bool)[todo], m, layer, NESTED_MARGIN_PX)
-        r = batched.normal(np.stack(hbs), fz, layer, thickness, _EPS, _PSI, MAX_STRAIN * thickness, windows=wins)
+        hb = np.stack(hbs)
+        reach = hb <= REACH * MAX_STRAIN * thickness
+        wins = batched.windows(reach) if within is None else _windows(np.asarray(within, bool)[todo], m, layer,
+                                                                      NESTED_MARGIN_PX)
+        solve = functools.partial(batched.normal, layer=layer, thickness=thickness, eps=_EPS, psi=_PSI,
+                                  refuse_above=MAX_STRAIN * thickness)
+        r = solve(hb, fz, windows=wins)
+        again = np.flatnonzero(_beyond(hb, r, reach, thickness) & (wins[:, 4] > 0)) if within is None else []
+        if len(again):
+            for k, v in solve(hb[again], fz[again]).items():
+                r[k][again] = v
         delta, u, p = r["delta"].astype(np.float64), r["u"], r["p"]
     inner = (slice(None), slice(m, m + H), slice(m, m + W))
     hb = np.stack(hbs)
@@ -154,6 +167,17 @@ def solve_normal_batch(hs, mm_per_px: float, shear_mpa: float, thickness: float,
         else:
             out[i] = Normal(float(delta[j]), surface[j], (p[j] > 0)[m:m + H, m:m + W], p[j][m:m + H, m:m + W])
     return out
+
+
+def _beyond(hb: np.ndarray, r: dict, reach: np.ndarray, thickness: float) -> np.ndarray:
+    """(B,) bool: the solved surface (batched.normal's r) passes through the body somewhere outside `reach`, where
+    its solve could not put pressure (the contact condition of batched._normal_one, on the whole grid)."""
+    body = hb < elastic_layer.FAR / 2
+    approach = np.minimum(r["delta"].astype(np.float64), _EPS[-1] * thickness)[:, None, None]
+    g = np.where(body, -stiffen(approach - hb, thickness), elastic_layer.FAR) + r["u"]
+    on = r["p"] > 0
+    level = (g * on).sum((1, 2)) / np.maximum(on.sum((1, 2)), 1)
+    return ((g < level[:, None, None]) & body & ~reach).any((1, 2))
 
 
 @contextlib.contextmanager
