@@ -45,17 +45,18 @@ def _press(p: dict, sensor: str, size, lo: int, hi: int, reference: bool = False
                            reference=reference, path=LOADING, steps=STEPS)
 
 
-def _rate(p: dict, sensor: str, size, n: int, batch: int, threads: int = 1, reference: bool = False) -> float:
-    """Presses per second over the first n presses, pressed batch x threads at a time, each call solved in
-    pieces of `batch`, `threads` pieces at once (after one warm-up call, so compiling is not counted)."""
+def _rate(p: dict, sensor: str, size, n: int, batch: int, threads: int = 1, reference: bool = False,
+          warm: bool = True) -> float:
+    """Presses per second over the first n presses, pressed in one call (as a dataset shard is) solved in pieces of
+    `batch`, `threads` pieces at once; warm: after an untimed call on the same presses, so compiling (each window
+    side's programs) is not counted."""
     before = batched.MAX_BATCH, batched.THREADS
     batched.MAX_BATCH, batched.THREADS = batch, threads  # each piece one solve of this size, on any device
-    step = batch * threads
     try:
-        _press(p, sensor, size, 0, step, reference)
+        if warm:
+            _press(p, sensor, size, 0, n, reference)
         t0 = time.perf_counter()
-        for a in range(0, n, step):
-            _press(p, sensor, size, a, min(a + step, n), reference)
+        _press(p, sensor, size, 0, n, reference)
         return n / (time.perf_counter() - t0)
     finally:
         batched.MAX_BATCH, batched.THREADS = before
@@ -72,9 +73,10 @@ def rates(sizes: dict, batches, n: int, reference_n: int, sensor: str = "mini-1-
     p = presses(max(*count.values(), reference_n) + max(batches) * threads, seed=1)
     out = {}
     for name, size in sizes.items():
-        ref = _rate(p, sensor, size, reference_n, 1, reference=True)
+        _rate(p, sensor, size, 1, 1, reference=True, warm=False)  # the shapes' tables built outside the timing
+        ref = _rate(p, sensor, size, reference_n, 1, reference=True, warm=False)  # numpy: nothing to compile
         new = {b: _rate(p, sensor, size, k, b) for b, k in count.items()}
-        many = {b: _rate(p, sensor, size, k, b, threads) for b, k in count.items()} if threads > 1 else {}
+        many = {b: _rate(p, sensor, size, k, b, threads, warm=False) for b, k in count.items()} if threads > 1 else {}
         out[name] = {"render_size": list(size), "reference_s": ref, "batched_s": new, "threaded_s": many,
                      "threads": threads, "speedup": {b: max(r, many.get(b, 0.0)) / ref for b, r in new.items()},
                      "n": n, "presses": count, "reference_n": reference_n, "loading": LOADING, "steps": STEPS}

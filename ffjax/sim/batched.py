@@ -210,11 +210,16 @@ def _kernels(layer: Layer):
 
 
 def _pieces(n: int):
-    """(start, stop, padded size) of the calls a batch of n presses takes."""
-    top = max_batch()
+    """(start, stop, padded size) of the calls a batch of n presses takes. On a CPU a last piece that would be
+    mostly padding is solved one press at a time instead (a CPU call costs in proportion to its presses)."""
+    top, cpu = max_batch(), not on_accelerator()
     for a in range(0, n, top):
         m = min(top, n - a)
-        yield a, a + m, next((b for b in BATCHES if b >= m), top)  # above BATCHES: MAX_BATCH, set by hand
+        size = next((b for b in BATCHES if b >= m), top)  # above BATCHES: MAX_BATCH, set by hand
+        if cpu and 2 * m <= size:
+            yield from ((k, k + 1, 1) for k in range(a, a + m))
+        else:
+            yield a, a + m, size
 
 
 def _padded(x: np.ndarray, size: int) -> np.ndarray:
