@@ -86,7 +86,7 @@ def _solve_pieces(call, n: int) -> list:
 
 def use_disk_cache() -> Path | None:
     """Keep compiled programs on disk (JAX's persistent compilation cache), so a new process (a dataset worker,
-    the next command) loads the solves' programs instead of compiling them again (~2 s per grid and batch size):
+    the next command) loads the solves' programs instead of compiling them again (0.1-1 s each, ~130 a dataset):
     in $FFJAX_CACHE/xla, else ~/.cache/ffjax/xla. Left alone when the user has set a cache directory already, or
     FFJAX_CACHE is "off"; returns the directory in use."""
     if jax.config.jax_compilation_cache_dir:
@@ -100,6 +100,9 @@ def use_disk_cache() -> Path | None:
     except OSError:  # a read-only home: compile in every process, as without the cache
         return None
     jax.config.update("jax_compilation_cache_dir", str(folder))
+    # jax keeps only programs that took >= 1 s to compile; a solve compiles in 0.1-1 s on a CPU, so none was kept
+    # and every process compiled its ~130 programs again (the quick dataset's 2 workers: 133 s of compiling)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     return folder
 
 
@@ -340,17 +343,23 @@ def _traction_program(cell: float, tol: float, max_iter: int):
 _fields_program = jax.jit(jax.vmap(_stick_fields))
 
 
+@functools.lru_cache(maxsize=1024)
+def _depth_kernel(layer: Layer, depth: float, j: int) -> np.ndarray:
+    """(8, H, W // 2 + 1): `layer.coupled(depth)[j]` as one array (stacked once per depth, not once per press)."""
+    return np.stack(layer.coupled(depth)[j])
+
+
 def _depth_kernels(layer: Layer, depths, j: int) -> np.ndarray:
     """(B, 8, H, W // 2 + 1): the coupled kernels `layer.coupled(d)[j]` (0: on the held plane, 1: at the surface)
     of each depth."""
-    return np.stack([np.stack(layer.coupled(float(d))[j]) for d in depths])
+    return np.stack([_depth_kernel(layer, float(d), j) for d in depths])
 
 
 def _hold_kernels(layer: Layer, side: int, depths) -> np.ndarray:
     """The kernels on the held plane of each depth: on a window of `side` (`_window_coupled`), 0: the whole grid."""
     if not side:
         return _depth_kernels(layer, depths, 0)
-    return np.stack([np.stack(_window_coupled(layer, side, float(d))) for d in depths])
+    return np.stack([_window_coupled(layer, side, float(d)) for d in depths])
 
 
 def stick(held: np.ndarray, force: np.ndarray, layer: Layer, depths=None, tol: float = 1e-4,
@@ -453,7 +462,7 @@ def _window_kernel(layer: Layer, side: int):
 
 
 @functools.lru_cache(maxsize=1024)
-def _window_coupled(layer: Layer, side: int, depth: float) -> tuple:
-    """The coupled kernels on the held plane at `depth` (`Layer.coupled(depth)[0]`) on a window of `side`: the
-    four direct ones even, the four couplings odd."""
-    return tuple(_aperiodic(k, layer.shape, side, j >= 4) for j, k in enumerate(layer.coupled(depth)[0]))
+def _window_coupled(layer: Layer, side: int, depth: float) -> np.ndarray:
+    """(8, side, side // 2 + 1): the coupled kernels on the held plane at `depth` (`Layer.coupled(depth)[0]`) on a
+    window of `side`: the four direct ones even, the four couplings odd."""
+    return np.stack([_aperiodic(k, layer.shape, side, j >= 4) for j, k in enumerate(layer.coupled(depth)[0])])
