@@ -300,18 +300,11 @@ def _stray(folder: Path, count: int) -> list[Path]:
     return sorted(p for p in folder.glob("shard_*.npz") if p.name not in want)
 
 
-def _start_worker(threads: int, cores: list | None = None, started=None) -> None:
+def _start_worker(threads: int) -> None:
     """A worker leaves Ctrl-C to the parent, which stops them all with one line (not one traceback each), and
-    solves `threads` pieces of a batch at once (the cores left to each worker). cores (one per worker) and
-    started (a shared counter): the worker keeps to its own core, so that its XLA threads do not contend with the
-    other workers' (on 2 cores, 2 unpinned workers ran 5-8% slower and switched context ~2.4M times a dataset)."""
+    solves `threads` pieces of a batch at once (the cores left to each worker)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     batched.THREADS = threads
-    if cores and started is not None and hasattr(os, "sched_setaffinity"):
-        with started.get_lock():
-            k, started.value = started.value, started.value + 1
-        if k < len(cores):  # a worker the pool starts again after one died shares the cores unpinned
-            os.sched_setaffinity(0, {cores[k]})
 
 
 def _shard_task(args) -> int:
@@ -354,15 +347,6 @@ def _prepare(out: Path, g: dict, force: bool) -> None:
 
 WORKERS_FROM = 2000  # presses: starting processes costs ~2 s, not worth it for fewer
 MAX_WORKERS = 8
-
-
-def _worker_cores(workers: int, threads: int) -> list | None:
-    """One core for each worker where each solves one piece at a time and there is a core for each, on a CPU;
-    else None (the workers share the cores: on a GPU, the solves run there)."""
-    if threads != 1 or batched.on_accelerator() or not hasattr(os, "sched_getaffinity"):
-        return None
-    cores = sorted(os.sched_getaffinity(0))
-    return cores[:workers] if len(cores) >= workers else None
 
 
 def cpu_workers() -> int:
@@ -442,9 +426,8 @@ def _generate(cfg: dict, out: Path, force: bool, workers: int | None, progress: 
                 bar.update(_shard_task(t))
         else:
             ctx = multiprocessing.get_context("spawn")  # safe even if the caller already started jax threads
-            threads = max(1, batched.threads() // workers)
             pool = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_start_worker,
-                                          initargs=(threads, _worker_cores(workers, threads), ctx.Value("i", 0)))
+                                          initargs=(max(1, batched.threads() // workers),))
             try:
                 for n in (f.result() for f in cf.as_completed([pool.submit(_shard_task, t) for t in tasks])):
                     bar.update(n)
