@@ -251,7 +251,7 @@ def normal(hb: np.ndarray, fz: np.ndarray, layer: Layer, thickness: float, eps: 
         else:
             r = solve(np.stack([_into_window(hb[i], w, FAR) for i, w in zip(idx, windows[idx])]), fz[idx], layer,
                       _window_kernel(layer, side))
-            out["p"][idx] = [_out_of_window(p, w, layer.shape) for p, w in zip(r["p"], windows[idx])]
+            _place(out["p"], idx, r["p"], windows[idx])
         out["delta"][idx], out["iterations"][idx] = r["delta"], r["iterations"]
     kernel = _kernels(layer)
     out["u"] = np.concatenate(_solve_pieces(lambda a, b, m: _apply(_padded(out["p"][a:b], m), kernel)[: b - a],
@@ -340,7 +340,18 @@ def _traction_program(cell: float, tol: float, max_iter: int):
     return jax.jit(jax.vmap(lambda h, f, a: _stick_traction(h, f, a, cell, tol, max_iter)))
 
 
-_fields_program = jax.jit(jax.vmap(_stick_fields))
+@functools.lru_cache(maxsize=32)
+def _fields_program(crop: tuple | None):
+    """The fields of a batch, cut to crop = (y0, x0, h, w) inside the program (None: the whole grid): a pad is a
+    fifth of its grid, so the rest is never copied out."""
+    def run(held, t, hold, surface):
+        fields, s = _stick_fields(held, t, hold, surface)
+        if crop is not None:
+            y0, x0, h, w = crop
+            fields = fields[:, y0:y0 + h, x0:x0 + w]
+        return fields, s
+
+    return jax.jit(jax.vmap(run))
 
 
 @functools.lru_cache(maxsize=1024)
@@ -363,12 +374,13 @@ def _hold_kernels(layer: Layer, side: int, depths) -> np.ndarray:
 
 
 def stick(held: np.ndarray, force: np.ndarray, layer: Layer, depths=None, tol: float = 1e-4,
-          max_iter: int = 500, windows: np.ndarray | None = None) -> dict:
+          max_iter: int = 500, windows: np.ndarray | None = None, crop: tuple | None = None) -> dict:
     """The stick solve of B presses: held (B, *layer.shape) bool, each a non-empty contact; force (B, 2) N the
     tangential load; depths (B,) mm, the plane each body holds the gel on (None: the surface; see
     `Layer.coupled`); windows (B, 5) (`windows` of the contacts): each press's conjugate gradients run on its
-    window (None: the whole grid). Returns numpy arrays on the whole grid: fields (B, 3, H, W) = (ux, uy, depth)
-    mm, s (B, 2) the body's displacement in mm, iterations (B,). The CG stops when the rms displacement error on
+    window (None: the whole grid); crop (y0, x0, h, w): the part of the grid the fields are wanted on (None: all).
+    Returns numpy arrays: fields (B, 3, h, w) = (ux, uy, depth) mm on the crop, s (B, 2) the body's displacement
+    in mm, iterations (B,). The CG stops when the rms displacement error on
     the contact is below tol x |s| (the reference's tolerance per mm of displacement)."""
     held, force = np.asarray(held, bool), np.asarray(force, np.float32)
     depths = np.zeros(len(held)) if depths is None else np.asarray(depths, np.float64)
@@ -386,8 +398,12 @@ def stick(held: np.ndarray, force: np.ndarray, layer: Layer, depths=None, tol: f
                                                   _hold_kernels(layer, side, _padded(d[a:b], m))), len(idx))  # noqa: B023
         r = _joined(parts, len(idx), ("t", "iterations"))
         iterations[idx] = r["iterations"]
-        traction[idx] = [_out_of_window(t, w, layer.shape) for t, w in zip(r["t"], windows[idx])] if side else r["t"]
-    parts = _solve_pieces(lambda a, b, m: _fields_program(_padded(held[a:b], m), _padded(traction[a:b], m),
+        if side:
+            _place(traction, idx, r["t"], windows[idx])
+        else:
+            traction[idx] = r["t"]
+    fields = _fields_program(None if crop is None else tuple(int(v) for v in crop))
+    parts = _solve_pieces(lambda a, b, m: fields(_padded(held[a:b], m), _padded(traction[a:b], m),
                                                           _depth_kernels(layer, _padded(depths[a:b], m), 0),
                                                           _depth_kernels(layer, _padded(depths[a:b], m), 1)),
                           len(held))
@@ -431,11 +447,11 @@ def _into_window(x: np.ndarray, window, fill) -> np.ndarray:
     return out
 
 
-def _out_of_window(x: np.ndarray, window, shape) -> np.ndarray:
-    """A window's solution x (..., side, side) on the grid of `shape`: its region in place, 0 elsewhere."""
-    out = np.zeros(x.shape[:-2] + tuple(shape), x.dtype)
-    out[(...,) + _region(window)] = x[..., : window[2], : window[3]]
-    return out
+def _place(grids: np.ndarray, idx, solutions: np.ndarray, windows) -> None:
+    """Each window's solution (..., side, side) into its region of grids[i] (whose other cells stay as they are,
+    0 where a solve's loads cannot lie)."""
+    for i, x, w in zip(idx, solutions, windows):
+        grids[i][(...,) + _region(w)] = x[..., : w[2], : w[3]]
 
 
 def _groups(windows: np.ndarray) -> list[tuple[int, np.ndarray]]:

@@ -312,8 +312,8 @@ def _stick(contacts, forces, depths, mm_per_px: float, shear_mpa: float, thickne
             fields.append(s[-1][0] * r["fields"][0] + s[-1][1] * r["fields"][1])
         fields, s = np.stack(fields), np.stack(s)
     else:
-        r = batched.stick(held, forces, layer, depths, windows=_windows(contacts, m, layer))
-        fields, s = r["fields"], r["s"].astype(np.float64)
+        r = batched.stick(held, forces, layer, depths, windows=_windows(contacts, m, layer), crop=(m, m, H, W))
+        return r["fields"], r["s"].astype(np.float64)
     return fields[:, :, m:m + H, m:m + W], s
 
 
