@@ -114,9 +114,13 @@ def findings(results: dict) -> dict:
                       all(improves.values()), ", ".join(f"{_name(m)}: {'yes' if v else 'not always'}"
                                                          for m, v in improves.items())))
         if all("digit" in t3[m] for m in t3):
-            best = min(t3, key=lambda m: _m(t3[m]["digit"]["after"]))
-            s.append(says("DINO RD is best on DIGIT after calibration", best == "dino_rd" if "dino_rd" in t3 else None,
-                          f"best here: {_name(best)} {_m(t3[best]['digit']['after']):.1f}%"))
+            digit = {m: {"mean": t3[m]["digit"]["after"]} for m in t3}
+            ranked = sorted(digit, key=lambda m: -_m(digit[m]["mean"]))  # worst first: extreme() asks who is last
+            best = ranked[-1]
+            s.append(says("DINO RD is best on DIGIT after calibration",
+                          extreme(digit, "dino_rd", ranked) if "dino_rd" in t3 else None,
+                          f"best here: {_name(best)} {_m(t3[best]['digit']['after']):.1f}%"
+                          + "".join(f", {_name(m)} {_m(t3[m]['digit']['after']):.1f}%" for m in ranked[-2::-1])))
         deg = {m: np.mean([_m(c["degradation_pct"]) for k, c in t3[m].items() if k != "digit"]) for m in t3}
         least = min(deg, key=deg.get)
         s.append(says("DINO RD's uncalibrated sensors degrade least after a GelSight calibration (paper 4% vs "

@@ -434,11 +434,13 @@ def sim_plot(res: dict, out: Path) -> str:
                    if 0.8 * min(v["reference_s"] for v in rates.values()) <= t
                    <= 1.25 * max(max([*v["batched_s"].values(), *v.get("threaded_s", {}).values()])
                                  for v in rates.values())] or [1])
-    ax.set_xlabel("batch size (presses per call)")
+    first = next(iter(rates.values()))
+    counts = set(first.get("presses", {}).values()) or {first.get("n", "?")}
+    each = f"{min(counts)}" if len(counts) == 1 else f"{min(counts)}-{max(counts)}"
+    ax.set_xlabel(f"piece size (presses per solve; each timed call presses {each})")
     ax.set_ylabel("presses per second (one process)")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7, ncol=len(rates), loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
-    first = next(iter(rates.values()))
     m = res.get("machine", {})
     where = "the GPU" if _on_gpu(res) else f"{m.get('cpu_model', 'the CPU')}, {m.get('cores', '?')} cores"
     ax.set_title(f"Simulator, {first.get('loading', '')} presses ({first.get('steps', '?')} path steps) on {where}",
