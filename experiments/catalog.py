@@ -195,7 +195,7 @@ EXPERIMENTS = (
     Experiment("pareto", "experiments.pareto",
                "Speed against accuracy: error against latency, training throughput and size, per method and size",
                _has("cells", "fronts"), _replot_pareto, args=_trains_seeds, reuses="ablation",
-               figures=("experiments/style.py",),
+               figures=("experiments/tables.py", "experiments/style.py"),  # tables: the footer's seeds in words
                cell_seeds=lambda r: [len(c["seeds"]) for c in r["cells"] if isinstance(c, dict) and "seeds" in c]),
     Experiment("stability", "experiments.stability",
                "Where each method fails: the seed spread and the error against noise, lighting, force, shear, "
@@ -204,7 +204,7 @@ EXPERIMENTS = (
     Experiment("downstream", "experiments.downstream",
                "Weighing by pushing (Table IV) and grasping with the trained models in the loop",
                _has("pushing", "grasping"), _replot_downstream, args=_reads_ablation, reuses="ablation",
-               figures=("experiments/downstream_report.py", "experiments/style.py")),
+               figures=("experiments/downstream_report.py", "experiments/tables.py", "experiments/style.py")),
     Experiment("bench-sim", "experiments.bench",
                "The simulator's speed: batched solves against the numpy reference, their agreement, a dataset's time",
                lambda r: r.get("experiment") == "bench" and "sim_speed" in r, _replot_bench,
