@@ -17,8 +17,11 @@ from pathlib import Path
 from experiments import common
 
 
-def replot(folder) -> str:
-    """Re-render one folder; returns its experiment's name. ValueError for a folder no experiment re-renders."""
+def replot(folder, commit: str | None = None) -> str:
+    """Re-render one folder; returns its experiment's name. ValueError for a folder no experiment re-renders.
+    commit: the code it is drawn with (default: HEAD now), read before any folder is re-rendered: a re-render
+    rewrites tracked files (results.json, the tables), which would make the commit read after it "-dirty"."""
+    commit = commit or common.git_commit()
     from experiments import catalog
 
     folder = Path(folder)
@@ -37,15 +40,16 @@ def replot(folder) -> str:
     # the commit it was drawn with (status: "replot" until the figures' sources change again); the numbers'
     # commit stays. Read again: a re-render may rewrite results.json (the ablation's findings).
     drawn = common.read_json(folder / "results.json") or results
-    common.write_json(folder / "results.json", {**drawn, "replotted": common.git_commit()})
+    common.write_json(folder / "results.json", {**drawn, "replotted": commit})
     return exp.name
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
     ap.add_argument("folders", nargs="+", help="folders holding a results.json")
+    commit = common.git_commit()  # before the first re-render changes a tracked file
     for folder in ap.parse_args(argv).folders:
-        print(f"{folder}: re-rendered ({replot(folder)})")
+        print(f"{folder}: re-rendered ({replot(folder, commit)})")
     return 0
 
 

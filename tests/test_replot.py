@@ -75,3 +75,19 @@ def test_the_commit_is_read_once_at_the_start_of_a_run(monkeypatch):
     monkeypatch.undo()
     assert common.git_commit() == "unknown"  # HEAD moved on, the run's commit did not
     common.git_commit.cache_clear()
+
+
+def test_replot_records_the_commit_read_before_it_rewrote_anything(tmp_path, monkeypatch):
+    """Re-rendering rewrites tracked files (results.json, the tables): a commit read after the first folder would
+    say "-dirty" for every folder of a call on a clean checkout, and experiments.status would keep asking a replot."""
+    from experiments import common
+
+    src = PUBLISHED / "ablation"
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        shutil.copy(src / "results.json", tmp_path / name / "results.json")
+    reads = iter(["c0ffee", "c0ffee-dirty", "c0ffee-dirty"])
+    monkeypatch.setattr(common, "git_commit", lambda: next(reads))
+    assert replot.main([str(tmp_path / "a"), str(tmp_path / "b")]) == 0
+    for name in ("a", "b"):
+        assert json.loads((tmp_path / name / "results.json").read_text())["replotted"] == "c0ffee"
