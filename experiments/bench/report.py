@@ -443,8 +443,8 @@ def sim_plot(res: dict, out: Path) -> str:
     ax.legend(fontsize=7, ncol=len(rates), loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
     m = res.get("machine", {})
     where = "the GPU" if _on_gpu(res) else f"{m.get('cpu_model', 'the CPU')}, {m.get('cores', '?')} cores"
-    ax.set_title(f"Simulator, {first.get('loading', '')} presses ({first.get('steps', '?')} path steps) on {where}",
-                 fontsize=9)
+    ax.set_title(f"Simulator, {first.get('loading', '')} presses ({first.get('steps', '?')} path steps)\non {where}",
+                 fontsize=9)  # two lines: a CPU's model name alone can fill the width
     fig.text(0.995, 0.005, f"ffjax bench · commit {str(res.get('commit', '?'))[:7]}", ha="right", va="bottom",
              fontsize=7, color="0.35")
     fig.tight_layout()
