@@ -61,10 +61,13 @@ def publish(src: Path, dst: Path) -> None:
 
 def merged_record(path: Path, record: dict) -> dict:
     """reproduce.json at path updated by this call's record: an --only call replaces its experiments' entries
-    (each keeps the commit it ran) and leaves the others'. An entry that reused cached stages keeps, as "work",
+    (each keeps the commit and the machine it ran on) and leaves the others'. An entry that reused cached stages keeps, as "work",
     the wall time and commit of the call that did the most work (a cached re-run's seconds are not its cost)."""
     previous = common.read_json(path) or {}
     entries = dict(previous.get("experiments", {}))
+    if previous.get("machine"):  # the top-level machine is the last call's: earlier entries keep their own
+        entries = {n: e if "machine" in e or e.get("commit") != previous.get("commit")
+                   else {**e, "machine": previous["machine"]} for n, e in entries.items()}
     for name, entry in record["experiments"].items():
         old = entries.get(name)
         if old and not entry.get("fresh", True):
@@ -120,7 +123,8 @@ def main(argv=None) -> dict:
         print(f"[reproduce] {exp.name}: python -m {exp.module} {' '.join(line)}", file=sys.stderr, flush=True)
         fresh = not (work / exp.name).exists()  # else cached stages may be reused: its wall time is not its cost
         record["experiments"][exp.name] = {"argv": line, "wall_s": run_one(exp, line), "fresh": fresh,
-                                           "commit": commit, "load_after": list(os.getloadavg())}
+                                           "commit": commit, "machine": record["machine"],
+                                           "load_after": list(os.getloadavg())}
         # recorded as each finishes: a kill or a crash later in a pipeline of hours keeps what it measured
         done = {**record, "experiments": {exp.name: record["experiments"][exp.name]}}
         common.write_json(work / "reproduce.json", merged_record(work / "reproduce.json", done))

@@ -136,6 +136,20 @@ def test_an_only_call_keeps_the_other_experiments_records(tmp_path):
     assert again["experiments"]["ablation"]["work"] == {"wall_s": 10.0, "commit": "a" * 40}
 
 
+def test_an_only_call_leaves_each_earlier_entry_the_machine_it_ran_on(tmp_path):
+    """The top-level machine is the last call's; an entry made by an earlier call on another machine keeps that
+    one (a --help cost must not put the ablation's minutes on the machine that only re-ran a benchmark)."""
+    path = tmp_path / "reproduce.json"
+    zen, xeon = {"cpu_model": "AMD EPYC", "cores": 2}, {"cpu_model": "Intel Xeon", "cores": 2}
+    common.write_json(path, {"preset": "quick", "commit": "a" * 40, "machine": zen, "experiments": {
+        "ablation": {"wall_s": 10.0, "commit": "a" * 40}, "old": {"wall_s": 1.0, "commit": "0" * 40}}})
+    merged = reproduce.merged_record(path, {"preset": "quick", "commit": "b" * 40, "machine": xeon, "experiments": {
+        "bench": {"wall_s": 5.0, "commit": "b" * 40, "machine": xeon}}})
+    assert merged["machine"] == xeon and merged["experiments"]["bench"]["machine"] == xeon
+    assert merged["experiments"]["ablation"]["machine"] == zen  # made by the call that recorded zen
+    assert "machine" not in merged["experiments"]["old"]  # made by a call before that one: not known
+
+
 def _commit(repo: Path, files: dict, message: str) -> str:
     for name, text in files.items():
         path = repo / name
