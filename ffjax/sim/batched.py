@@ -88,7 +88,9 @@ def use_disk_cache() -> Path | None:
     """Keep compiled programs on disk (JAX's persistent compilation cache), so a new process (a dataset worker,
     the next command) loads the solves' programs instead of compiling them again (0.1-1 s each, ~130 a dataset):
     in $FFJAX_CACHE/xla, else ~/.cache/ffjax/xla. Left alone when the user has set a cache directory already, or
-    FFJAX_CACHE is "off"; returns the directory in use."""
+    FFJAX_CACHE is "off"; returns the directory in use. For processes that only simulate (`ffjax.simulate`, a
+    dataset's workers): jax's cache is process-wide, and writing some training programs to it crashed jax 0.10
+    (a segfault in the cache's put_executable_and_time, the smoke pipeline's benchmark step)."""
     if jax.config.jax_compilation_cache_dir:
         return Path(jax.config.jax_compilation_cache_dir)
     root = os.environ.get("FFJAX_CACHE", str(Path.home() / ".cache" / "ffjax"))

@@ -305,12 +305,12 @@ def _start_worker(threads: int) -> None:
     solves `threads` pieces of a batch at once (the cores left to each worker)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     batched.THREADS = threads
+    batched.use_disk_cache()  # a process that only simulates: the solves' programs from disk after the first run
 
 
 def _shard_task(args) -> int:
     spec, p, lo, hi, size, data, path = args
     cv2.setNumThreads(1)  # one process per core already
-    batched.use_disk_cache()  # a worker process: the solves' programs from disk after the first run
     save_npz(path, render_shard(spec, p, lo, hi, size, data))
     return hi - lo
 
