@@ -11,6 +11,10 @@ ROOT = Path(__file__).resolve().parents[1]
 # Tests run the smoke preset: a command that forgot its --data/--out would land in one of these defaults
 # (data/<preset>, runs/<preset>-<method>, results/<experiment>-<preset>; under the repo or the working directory).
 DEFAULTS = ("data/smoke", "runs/smoke-*", "results/*-smoke")
+# The simulator's compile cache is process-wide (ffjax.sim.batched.use_disk_cache): a test that runs
+# `ffjax.simulate` in the test process would turn it on for every later test there, and writing some training
+# programs to it crashed jax 0.10. The tests compile afresh, workers included (they inherit this).
+os.environ.setdefault("FFJAX_CACHE", "off")
 
 
 def _snapshot() -> dict[str, int]:
