@@ -216,12 +216,10 @@ def test_worker_processes_write_the_bytes_one_process_writes(tmp_path, monkeypat
     """A dataset made by 2 worker processes (as the quick one is) is the bytes one process makes: what the pipeline
     publishes does not depend on how many workers simulated it."""
     small = configs.get("smoke", {"data.train_per_indenter": 2, "data.val_per_indenter": 2, "data.shard_size": 8})
-    monkeypatch.setattr(dataset, "split_specs", lambda c: [s for s in _specs(c) if s.name in ("train", "val")])
+    every = dataset.split_specs
+    monkeypatch.setattr(dataset, "split_specs", lambda c: [s for s in every(c) if s.name in ("train", "val")])
     made = {}
     for workers in (2, 1):
         dataset.generate(small, tmp_path / str(workers), workers=workers, progress=False)
         made[workers] = _files(tmp_path / str(workers))
     assert sum(k.endswith(".npz") for k in made[1]) == 6 and made[2] == made[1]
-
-
-_specs = dataset.split_specs
