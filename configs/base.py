@@ -32,7 +32,8 @@ SPEC = {
         # the path); "shear": pressed to Fz, then Fz * tan(tilt) + noise applied sideways in stick (before issue 32)
         "loading": Key("oblique", choice("oblique", "shear"), before="shear"),
         "path_steps": Key(4, POS_INT),  # oblique: increments of the press's path (4: Ft within 2-7% of 16 steps)
-        # roll/pitch of a press uniform in +-tilt_max_deg; 15: the release's Fx, Fy of +-2 N at Fz 15 N (docs/simulator.md)
+        # roll/pitch of a press uniform in +-tilt_max_deg; 15: the release's Fx, Fy of +-2 N at Fz 15 N
+        # (docs/simulator.md)
         "tilt_max_deg": Key(15.0, num(0, 90, hi_open=True), before=7.0),
         "shear_noise": Key(0.06, NN, late=True),  # shear: std of the shear beyond Fz * tan(tilt), a fraction of Fz
         "shear_max": Key(2.0, NN),  # N; shear: |Fx|, |Fy| are redrawn above it (the simulator caps at mu * Fz)

@@ -40,7 +40,8 @@ def measured_cost(experiment: str, preset: str) -> str | None:
     record = ROOT / "docs" / "results" / preset / "reproduce.json"
     try:
         run = json.loads(record.read_text())
-        this, machine = run["experiments"][experiment], run.get("machine", {})
+        this = run["experiments"][experiment]
+        machine = this.get("machine") or run.get("machine", {})  # each entry's own: one record holds several VMs
         if not this.get("fresh", True) or not this.get("wall_s"):
             return None
         minutes = float(this["wall_s"]) / 60
@@ -56,14 +57,10 @@ def base_parser(description: str, default_preset: str = "quick", costs: dict | N
     """The experiments' shared flags. costs: {preset: what a run does, in words (no timings: those go stale)},
     shown in --help and said at the start of a run with the published run's measured time where one is recorded
     (measured_cost), so nobody starts a half-hour job without knowing. experiment: its name in the published
-    record (default: the calling module's last name, e.g. "sweep_loss")."""
-    if experiment is None:
-        caller = sys._getframe(1).f_globals
-        spec = caller.get("__spec__")
-        experiment = (spec.name if spec is not None and spec.name else caller.get("__name__", "")).rsplit(".", 1)[-1]
+    record (e.g. "sweep_loss"); None for a command the pipeline does not run (no measured time to show)."""
     costs = {"smoke": "a minute or two, numbers meaningless", **(costs or {})}
     for preset in configs.PRESETS:
-        measured = measured_cost(experiment, preset) if preset != "smoke" else None
+        measured = measured_cost(experiment, preset) if experiment and preset != "smoke" else None
         if measured:
             costs[preset] = f"{costs[preset]}; {measured}" if preset in costs else measured
     ap = argparse.ArgumentParser(prog=prog(), description=description)

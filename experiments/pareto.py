@@ -64,7 +64,7 @@ AXIS_LABELS = {"latency_b1_ms": "inference latency, batch 1 (ms)", "train_img_s"
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0],
+    ap = common.base_parser(__doc__.strip().splitlines()[0], experiment="pareto",
                             costs={"quick": "reuses an ablation's runs (--ablation)"})
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
                     help=f"registry names (default: the paper set {', '.join(registry.PAPER_SET)})")

@@ -54,7 +54,7 @@ def data_folder(cfg: dict, data_dir, share: float) -> Path:
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0],
+    ap = common.base_parser(__doc__.strip().splitlines()[0], experiment="pattern_share",
                             costs={"quick": "~2 datasets and 2 methods x 2 shares of training beyond the ablation"})
     ap.add_argument("--shares", type=float, nargs="+", default=list(DEFAULT_SHARES),
                     help="shares of the fine fixed pattern on the gel, each in [0, 1]")

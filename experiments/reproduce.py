@@ -61,8 +61,9 @@ def publish(src: Path, dst: Path) -> None:
 
 def merged_record(path: Path, record: dict) -> dict:
     """reproduce.json at path updated by this call's record: an --only call replaces its experiments' entries
-    (each keeps the commit and the machine it ran on) and leaves the others'. An entry that reused cached stages keeps, as "work",
-    the wall time and commit of the call that did the most work (a cached re-run's seconds are not its cost)."""
+    (each keeps the commit and the machine it ran on) and leaves the others'. An entry that reused cached stages
+    keeps, as "work", the wall time and commit of the call that did the most work (a cached re-run's seconds are
+    not its cost)."""
     previous = common.read_json(path) or {}
     entries = dict(previous.get("experiments", {}))
     if previous.get("machine"):  # the top-level machine is the last call's: earlier entries keep their own

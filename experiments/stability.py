@@ -353,7 +353,7 @@ def seed_spread(evals: dict) -> dict:
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0],
+    ap = common.base_parser(__doc__.strip().splitlines()[0], experiment="stability",
                             costs={"quick": "reuses an ablation's 15 runs (--ablation)"})
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
                     help="registry names (default: the ablation's methods, else the paper set)")

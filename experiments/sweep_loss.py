@@ -64,7 +64,7 @@ def scores(ev: dict) -> dict:
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0],
+    ap = common.base_parser(__doc__.strip().splitlines()[0], experiment="sweep_loss",
                             costs={"quick": "reuses an ablation's runs (--ablation)"})
     ap.add_argument("--betas", type=float, nargs="+", default=list(DEFAULT_BETAS), help="depth-loss weights")
     ap.add_argument("--alpha", type=float, default=1.0, help="force-loss weight (the x axis is beta / alpha)")

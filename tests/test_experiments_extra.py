@@ -197,3 +197,9 @@ def test_help_costs_come_from_the_published_record(tmp_path, monkeypatch):
     assert common.measured_cost("sweep_loss", "full") is None
     costs = common.base_parser("x", costs={"quick": "reuses runs"}, experiment="sweep_loss").get_default("_costs")
     assert costs["quick"].startswith("reuses runs; measured 10 min")
+    # an entry run on another VM names its own machine, not the record's last one
+    record = json.loads(rec.read_text())
+    record["experiments"]["sweep_loss"]["machine"] = {"cpu_model": "CPU Y", "cores": 2}
+    rec.write_text(json.dumps(record))
+    assert "on CPU Y, 2 cores" in common.measured_cost("sweep_loss", "quick")
+    assert "measured" not in common.base_parser("x", costs={"quick": "q"}).get_default("_costs")["quick"]
