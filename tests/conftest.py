@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import gc
 import os
 from pathlib import Path
 
+import jax
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,3 +42,25 @@ def users_folders_untouched():
     after = _snapshot()
     changed = sorted(p for p in before.keys() | after.keys() if before.get(p) != after.get(p))
     assert not changed, f"the tests wrote into the user's folders (pass --data/--out under tmp_path): {changed[:5]}"
+
+
+def _map_count() -> tuple[int, int] | None:
+    """This process's memory mappings and the kernel's limit on them (Linux), else None."""
+    try:
+        with open("/proc/self/maps", "rb") as maps, open("/proc/sys/vm/max_map_count") as limit:
+            return sum(1 for _ in maps), int(limit.read())
+    except OSError:
+        return None
+
+
+@pytest.fixture(autouse=True)
+def compiled_programs_released():
+    """XLA maps each compiled CPU program's code in ~1,000 small mappings, and jax's caches keep every program a
+    worker ever compiled. A worker of the whole suite reached Linux's 65,530 mappings at ~90% of the run: mmap
+    then failed inside XLA, which crashed the worker (a segfault, or a corrupted interpreter that failed at
+    random later). Past half the limit the caches are dropped; later tests only compile again."""
+    yield
+    counted = _map_count()
+    if counted and counted[0] > counted[1] // 2:
+        jax.clear_caches()
+        gc.collect()
