@@ -208,6 +208,32 @@ def _wall(results: dict) -> str:
     return f"{t / 60:.0f} min" if isinstance(t, (int, float)) else "-"
 
 
+def _cost(entry: dict) -> float:
+    """An experiment's wall seconds, or those of the call that did its work when it reused cached stages."""
+    return max(entry["wall_s"], (entry.get("work") or {}).get("wall_s", 0))
+
+
+def _default_command(record: dict) -> str | None:
+    """A sentence on `reproduce --preset P` as a user runs it (every experiment but those run on request), when
+    its experiments' entries all ran at one commit on one machine: their wall times summed. None otherwise (the
+    entries then come from several calls, commits or machines, and their sum is no one call's time)."""
+    runs = record.get("experiments", {})
+    names = [e.name for e in catalog.one_command()]
+    entries = [runs.get(n) for n in names]
+    if not all(entries):
+        return None
+    commits = {e.get("commit") for e in entries}
+    machines = {(e.get("machine") or record.get("machine") or {}).get("cpu_model") for e in entries}
+    if len(commits) != 1 or len(machines) != 1 or None in commits | machines:
+        return None
+    m = entries[0].get("machine") or record["machine"]
+    skipped = [e.name for e in catalog.pipeline() if e.on_request]
+    return (f"The default command, `python -m experiments.reproduce --preset {record['preset']}` "
+            f"({len(names)} experiments" + (f"; {', '.join(skipped)} only on request" if skipped else "")
+            + f"), ran at `{commits.pop()[:12]}` on {m['cpu_model']} ({m['cores']} cores): "
+            f"{sum(_cost(e) for e in entries) / 60:.0f} min wall, its experiments' times summed.")
+
+
 def index(rows, root, record: dict | None = None) -> str:
     """The index page of a results tree: every result, what it answers, how it was made and whether it is
     current. record: experiments.reproduce's reproduce.json for this tree (the run's commands and wall times)."""
@@ -220,7 +246,7 @@ def index(rows, root, record: dict | None = None) -> str:
              "today's HEAD).", ""]
     if record:
         # each experiment's cost: its own wall time, or the call that did its work when it reused cached stages
-        total = sum(max(v["wall_s"], (v.get("work") or {}).get("wall_s", 0)) for v in runs.values())
+        total = sum(_cost(v) for v in runs.values())
         commits = sorted({r.commit[:12] for r in rows if r.commit})  # what each result recorded it ran
         lines += [f"Made by `python -m experiments.reproduce --preset {record['preset']}` at commit"
                   f"{'s' if len(commits) > 1 else ''} {', '.join(f'`{c}`' for c in commits)}: "
@@ -228,6 +254,9 @@ def index(rows, root, record: dict | None = None) -> str:
                   "did its work), load average "
                   f"{record['load_start'][0]:.1f} at the start of the last call and {record['load_end'][0]:.1f} "
                   "at its end.", ""]
+        default = _default_command(record)
+        if default:
+            lines += [default, ""]
         if record.get("ran") and "wall_s" in record:  # the last call alone: one commit, one machine, one clock
             m = record.get("machine") or {}
             lines += [f"The last call ran {', '.join(record['ran'])} at `{record['commit'][:12]}`"

@@ -269,3 +269,19 @@ def test_seeds_column_spans_the_cells_of_every_kind():
                                                       "0.5": {"methods": {"dino_rd": three}}}},
                          exp["pattern_share"]) == "1-3"
     assert status._seeds({"seeds": [0, 1, 2]}) == "3"
+
+
+def test_the_index_gives_the_default_command_time_only_when_one_call_made_it(tmp_path):
+    """The default command's time is stated only when all its experiments ran at one commit on one machine; an
+    --only call's entries (another commit) or a missing experiment leave it unsaid."""
+    machine = {"cpu_model": "Test CPU", "cores": 2}
+    names = [e.name for e in catalog.one_command()]
+    entries = {n: {"wall_s": 60.0, "commit": "a" * 40, "machine": machine} for n in names}
+    record = {"preset": "quick", "commit": "a" * 40, "machine": machine, "experiments": entries}
+    line = status._default_command(record)
+    assert line and f"{len(names)} min wall" in line and "Test CPU (2 cores)" in line and "a" * 12 in line
+    on_request = [e.name for e in catalog.pipeline() if e.on_request]
+    assert all(n in line for n in on_request)  # said to be left out
+    other = {**entries, names[0]: {**entries[names[0]], "commit": "b" * 40}}
+    assert status._default_command({**record, "experiments": other}) is None
+    assert status._default_command({**record, "experiments": dict(list(entries.items())[1:])}) is None
