@@ -322,6 +322,20 @@ def sim_tables(ss: dict | None) -> str:
                            _f(100 * v["pixels_over_1_count"], 4), v["refused_by_one"],
                            *((_f(v["over_1um_to_converged_um"][p], 3) if v["presses_over_1um"] else "-")
                              for p in ("batched", "reference"))] for k, v in ag.items()])]
+    fl = ss.get("floor")
+    if fl:
+        out += [f"\nWhere a press's time goes ({fl['presses']} presses at {'x'.join(map(str, fl['render_size']))}, "
+                f"pressed in one call on one thread, batches of {fl['batch']}): {_f(fl['ms_a_press'])} ms a press, "
+                "against what its layer solves' FFTs alone take (each solve's rfft2/irfft2 pairs on its window, "
+                "timed alone at that batch, times its iterations): a floor for these solves with these iterations on "
+                "this machine, which no fusion or saved overhead gets under; only fewer solves, fewer iterations "
+                "or smaller grids do.\n",
+                md_table(["solve", "solves a press", "on a window %", "iterations (mean)", "iterations (p90)",
+                          "FFT floor ms a press"],
+                         [[k, _f(v["a_press"], 2), _f(100 * v["windowed"]), _f(v["iterations_mean"]),
+                           _f(v["iterations_p90"]), _f(v["fft_floor_ms_a_press"], 2)]
+                          for k, v in fl["solves"].items()]
+                         + [["both", "", "", "", "", _f(fl["fft_floor_ms_a_press"], 2)]])]
     mem = ss.get("memory")
     if mem:
         device = (f"; the device's peak {_f(mem['device_peak_mib'])} MiB (jax's allocator)"

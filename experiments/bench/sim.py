@@ -8,6 +8,7 @@ measurement: `--data`, as the pipeline gives it)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
@@ -83,6 +84,87 @@ def rates(sizes: dict, batches, n: int, reference_n: int, sensor: str = "mini-1-
         log(f"[bench] sim {name}: reference {ref:.1f}/s, batched " + ", ".join(
             f"batch {b} {r:.1f}/s" for b, r in new.items()) + "".join(
             f", {threads} threads batch {b} {r:.1f}/s" for b, r in many.items()))
+    return out
+
+
+@contextlib.contextmanager
+def _solves_seen():
+    """Record every layer solve the simulator runs inside: (kind, window side (0: the whole grid), grid shape,
+    iterations) for each press of each call of batched.normal and batched.stick (the solvers left as they are)."""
+    seen, normal, stick = [], batched.normal, batched.stick
+
+    def watch(kind, solve):
+        def run(loads, force, layer, *args, **kw):
+            r = solve(loads, force, layer, *args, **kw)
+            sides = kw["windows"][:, 4] if kw.get("windows") is not None else np.zeros(len(loads), int)
+            seen.extend((kind, int(s), layer.shape, int(i)) for s, i in zip(sides, r["iterations"]))
+            return r
+        return run
+
+    batched.normal, batched.stick = watch("normal", normal), watch("stick", stick)
+    try:
+        yield seen
+    finally:
+        batched.normal, batched.stick = normal, stick
+
+
+def _transform_pair_s(shape, channels: int, batch: int, calls: int = 50) -> float:
+    """Seconds a press of one rfft2 and irfft2 of `channels` channels on `shape`, with a kernel product between,
+    timed over a batch of `batch` (one jitted program, as a solve's iteration runs them)."""
+    import jax
+    import jax.numpy as jnp
+
+    x = jnp.ones((batch, channels, *shape), jnp.float32)
+    kernel = jnp.ones((shape[0], shape[1] // 2 + 1), jnp.float32)
+    pair = jax.jit(lambda x: jnp.fft.irfft2(kernel * jnp.fft.rfft2(x), s=x.shape[-2:]))
+    x = pair(x).block_until_ready()
+    t0 = time.perf_counter()
+    for _ in range(calls):
+        x = pair(x)
+    x.block_until_ready()
+    return (time.perf_counter() - t0) / calls / batch
+
+
+# transforms of each solve: (per iteration, once) on its window, and once on the whole grid
+_TRANSFORMS = {"normal": (2, 1, 1),  # u and the CG direction's response; u at the end; u on the whole grid
+               "stick": (1, 1, 2)}  # the direction's response; the first residual; the fields (held and surface)
+_CHANNELS = {"normal": 1, "stick": 3}  # the stick solve transforms the traction's 3 components together
+
+
+def floor(n: int, size, sensor: str = "mini-1-gel1") -> dict:
+    """Where a press's time goes against what its transforms alone cost: n presses pressed as the dataset presses
+    in one call on one thread (after an untimed call: compiling not counted), each layer solve's window and
+    iterations recorded, and each solve's FFTs timed alone at the device's batch (`_transform_pair_s`). The
+    transforms' sum is a floor for these solves with these iterations on this machine: no fusion or overhead
+    saved gets under it, only fewer solves, fewer iterations or smaller grids."""
+    p = presses(n, seed=4)
+    before = batched.THREADS
+    batched.THREADS = 1
+    try:
+        _press(p, sensor, size, 0, n)
+        with _solves_seen() as seen:
+            t0 = time.perf_counter()
+            _press(p, sensor, size, 0, n)
+            seconds = time.perf_counter() - t0
+    finally:
+        batched.THREADS = before
+    pair, out = {}, {"presses": n, "render_size": list(size), "ms_a_press": 1e3 * seconds / n,
+                     "batch": batched.max_batch(), "solves": {}}
+    for kind in ("normal", "stick"):
+        mine = [s for s in seen if s[0] == kind]
+        per_it, once, whole = _TRANSFORMS[kind]
+        ms = 0.0
+        for _, side, grid, its in mine:
+            for shape, count in (((side, side) if side else grid, per_it * its + once), (grid, whole)):
+                key = (shape, _CHANNELS[kind])
+                if key not in pair:
+                    pair[key] = _transform_pair_s(shape, _CHANNELS[kind], batched.max_batch())
+                ms += 1e3 * count * pair[key]
+        out["solves"][kind] = {"a_press": len(mine) / n, "iterations_mean": float(np.mean([s[3] for s in mine])),
+                               "iterations_p90": float(np.percentile([s[3] for s in mine], 90)),
+                               "windowed": float(np.mean([s[1] > 0 for s in mine])),
+                               "fft_floor_ms_a_press": ms / n}
+    out["fft_floor_ms_a_press"] = sum(v["fft_floor_ms_a_press"] for v in out["solves"].values())
     return out
 
 
@@ -218,6 +300,10 @@ def run(plan: dict, log=print, data=None) -> dict:
                                  plan.get("agreement_sensors"))
     log("[bench] sim agreement: depth within " + ", ".join(
         f"{k} {v['depth_um_max']:.2f} um" for k, v in out["agreement"].items()))
+    if plan.get("floor"):
+        out["floor"] = floor(plan["floor"], tuple(plan["agreement_size"]))
+        log(f"[bench] sim floor: {out['floor']['ms_a_press']:.1f} ms a press, its transforms alone "
+            f"{out['floor']['fft_floor_ms_a_press']:.1f} ms")
     out["memory"] = peak_memory(*plan["memory"], plan.get("memory_piece", 0))
     log(f"[bench] sim memory: {out['memory']}")
     for key, spec in (("dataset", plan.get("dataset")), ("sample", plan.get("sample"))):

@@ -35,7 +35,8 @@ PLANS = {
         "vit_b14": None, "timing": (1, 1, 2), "infer_timing": (1, 2, 2), "peak_n": 256,
         "sim": {"n": {"64x64": 10}, "sizes": {"64x64": (24, 32)}}, "data": {"per_shape": 4, "batches": 3},
         "sim_speed": {"sizes": {"24x32": (24, 32)}, "batches": (1, 8), "n": 8, "reference_n": 4,
-                      "agreement_size": (24, 32), "agreement_per_shape": 1, "memory": (8, (24, 32)), "dataset": None},
+                      "agreement_size": (24, 32), "agreement_per_shape": 1, "memory": (8, (24, 32)), "dataset": None,
+                      "floor": 4},
         "workers": (0,),
         "scaling": {"base": "smoke", "batch": (4, 8), "size": (16, 32), "model": ((16, 1, 2), (32, 2, 2))},
         "dp": None, "bf16_acc": {"preset": "smoke", "steps": 12, "batch": 8}, "profile": True,
@@ -52,6 +53,7 @@ PLANS = {
         "sim_speed": {"sizes": {"48x64": (48, 64), "120x160": (120, 160), "240x320": (240, 320)},
                       "batches": (1, 8, 32), "n": 128, "reference_n": 32, "agreement_size": (48, 64),
                       "agreement_per_shape": 3, "memory": (256, (240, 320)), "dataset": "quick",
+                      "floor": 128,  # presses timed against their transforms alone (at agreement_size)
                       # the agreement on one Mini per gel and the DIGIT: the three Minis of a gel solve alike
                       # (sim.mechanics_key) and agreed to the last digit on every column at d6bb2a3
                       "agreement_sensors": ("mini-1-gel1", "mini-1-gel2", "mini-1-gel3", "digit"),
