@@ -95,12 +95,18 @@ def first_table(text: str) -> str:
 
 
 def _include(match: re.Match) -> str:
-    path = common.ROOT / match.group("args").strip()
+    """FILE.md: its first table; FILE.md#TEXT: its first table after the first line holding TEXT."""
+    name, _, after = match.group("args").strip().partition("#")
+    path = common.ROOT / name
     if not path.is_file():
         raise FileNotFoundError(f"a result-include block names {path.relative_to(common.ROOT)}, which does not exist")
-    body = first_table(path.read_text())
+    text = path.read_text()
+    if after and after not in text:
+        raise ValueError(f"{path.relative_to(common.ROOT)} holds no {after!r} to include a table after")
+    body = first_table(text[text.index(after):] if after else text)
     if not body:
-        raise ValueError(f"{path.relative_to(common.ROOT)} holds no Markdown table to include")
+        raise ValueError(f"{path.relative_to(common.ROOT)} holds no Markdown table to include"
+                         + (f" after {after!r}" if after else ""))
     return match.group(1) + body + "\n" + match.group(4)
 
 

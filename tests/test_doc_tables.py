@@ -36,6 +36,12 @@ def test_an_include_block_copies_the_first_table_of_its_file(tmp_path, monkeypat
     (tmp_path / "r" / "prose.md").write_text("no table\n")
     with pytest.raises(ValueError, match="no Markdown table"):
         doc_tables.regenerate("<!-- result-include: r/prose.md -->\n<!-- /result-include -->")
+    # FILE.md#TEXT: the first table after the line holding TEXT
+    doc = "<!-- result-include: r/sweep.md#prose -->\n<!-- /result-include -->"
+    assert doc_tables.regenerate(doc) == ("<!-- result-include: r/sweep.md#prose -->\n| c |\n|---|\n"
+                                          "<!-- /result-include -->")
+    with pytest.raises(ValueError, match="no 'elsewhere'"):
+        doc_tables.regenerate("<!-- result-include: r/sweep.md#elsewhere -->\n<!-- /result-include -->")
 
 
 def test_a_block_naming_a_missing_folder_is_refused():
