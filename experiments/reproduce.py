@@ -63,7 +63,7 @@ def merged_record(path: Path, record: dict) -> dict:
     """reproduce.json at path updated by this call's record: an --only call replaces its experiments' entries
     (each keeps the commit and the machine it ran on) and leaves the others'. An entry that reused cached stages
     keeps, as "work", the wall time and commit of the call that did the most work (a cached re-run's seconds are
-    not its cost)."""
+    not its cost). "default_command" keeps the default command's last whole run (status.default_call)."""
     previous = common.read_json(path) or {}
     entries = dict(previous.get("experiments", {}))
     if previous.get("machine"):  # the top-level machine is the last call's: earlier entries keep their own
@@ -76,7 +76,10 @@ def merged_record(path: Path, record: dict) -> dict:
             if done["wall_s"] > entry["wall_s"]:
                 entry = {**entry, "work": done}
         entries[name] = entry
-    return {**previous, **record, "experiments": entries}
+    merged = {**previous, **record, "experiments": entries}
+    # the default command's last whole run, kept when an --only call replaces some of its entries (status.index)
+    whole = status.default_call(merged) or status.default_call(previous) or previous.get("default_command")
+    return {**merged, "default_command": whole} if whole else merged
 
 
 def main(argv=None) -> dict:

@@ -213,25 +213,36 @@ def _cost(entry: dict) -> float:
     return max(entry["wall_s"], (entry.get("work") or {}).get("wall_s", 0))
 
 
-def _default_command(record: dict) -> str | None:
-    """A sentence on `reproduce --preset P` as a user runs it (every experiment but those run on request), when
-    its experiments' entries all ran at one commit on one machine: their wall times summed. None otherwise (the
-    entries then come from several calls, commits or machines, and their sum is no one call's time)."""
+def default_call(record: dict) -> dict | None:
+    """`reproduce --preset P` as a user runs it (every experiment but those run on request), when the record's
+    entries for all its experiments ran at one commit on one machine: {commit, machine, wall_s (their times
+    summed), experiments}; else None (their sum is then no one call's time)."""
     runs = record.get("experiments", {})
     names = [e.name for e in catalog.one_command()]
     entries = [runs.get(n) for n in names]
     if not all(entries):
         return None
+    machines = [e.get("machine") or record.get("machine") or {} for e in entries]
     commits = {e.get("commit") for e in entries}
-    machines = {(e.get("machine") or record.get("machine") or {}).get("cpu_model") for e in entries}
-    if len(commits) != 1 or len(machines) != 1 or None in commits | machines:
+    cpus = {m.get("cpu_model") for m in machines}
+    if len(commits) != 1 or len(cpus) != 1 or None in commits | cpus:
         return None
-    m = entries[0].get("machine") or record["machine"]
+    return {"commit": commits.pop(), "machine": machines[0], "wall_s": round(sum(_cost(e) for e in entries), 1),
+            "experiments": names}
+
+
+def _default_command(record: dict) -> str | None:
+    """A sentence on the default command's last whole run: the record's entries (default_call), or the one
+    experiments.reproduce kept when a later --only call replaced some of them (record["default_command"])."""
+    call = default_call(record) or record.get("default_command")
+    if not call:
+        return None
+    m = call["machine"]
     skipped = [e.name for e in catalog.pipeline() if e.on_request]
     return (f"The default command, `python -m experiments.reproduce --preset {record['preset']}` "
-            f"({len(names)} experiments" + (f"; {', '.join(skipped)} only on request" if skipped else "")
-            + f"), ran at `{commits.pop()[:12]}` on {m['cpu_model']} ({m['cores']} cores): "
-            f"{sum(_cost(e) for e in entries) / 60:.0f} min wall, its experiments' times summed.")
+            f"({len(call['experiments'])} experiments" + (f"; {', '.join(skipped)} only on request" if skipped else "")
+            + f"), last ran whole at `{call['commit'][:12]}` on {m['cpu_model']} ({m['cores']} cores): "
+            f"{call['wall_s'] / 60:.0f} min wall, its experiments' times summed.")
 
 
 def index(rows, root, record: dict | None = None) -> str:

@@ -285,3 +285,23 @@ def test_the_index_gives_the_default_command_time_only_when_one_call_made_it(tmp
     other = {**entries, names[0]: {**entries[names[0]], "commit": "b" * 40}}
     assert status._default_command({**record, "experiments": other}) is None
     assert status._default_command({**record, "experiments": dict(list(entries.items())[1:])}) is None
+
+
+def test_an_only_call_keeps_the_default_commands_last_whole_run(tmp_path):
+    """An --only call at another commit replaces one entry: the default command's last whole run (its commit,
+    machine and summed time) stays in reproduce.json and on the index."""
+    machine = {"cpu_model": "Test CPU", "cores": 2}
+    names = [e.name for e in catalog.one_command()]
+    path = tmp_path / "reproduce.json"
+    common.write_json(path, {"preset": "quick", "commit": "a" * 40, "machine": machine,
+                             "experiments": {n: {"wall_s": 60.0, "commit": "a" * 40} for n in names}})
+    merged = reproduce.merged_record(path, {"preset": "quick", "commit": "b" * 40, "machine": machine,
+                                            "experiments": {names[-1]: {"wall_s": 6.0, "commit": "b" * 40}}})
+    assert status.default_call(merged) is None  # the entries now span two commits
+    kept = merged["default_command"]
+    assert kept["commit"] == "a" * 40 and kept["wall_s"] == 60.0 * len(names) and kept["machine"] == machine
+    assert f"`{'a' * 12}`" in status._default_command(merged)
+    common.write_json(path, merged)  # a further --only call keeps it still
+    again = reproduce.merged_record(path, {"preset": "quick", "commit": "c" * 40, "machine": machine,
+                                           "experiments": {names[0]: {"wall_s": 5.0, "commit": "c" * 40}}})
+    assert again["default_command"] == kept
