@@ -44,13 +44,21 @@ def users_folders_untouched():
     assert not changed, f"the tests wrote into the user's folders (pass --data/--out under tmp_path): {changed[:5]}"
 
 
-def _map_count() -> tuple[int, int] | None:
-    """This process's memory mappings and the kernel's limit on them (Linux), else None."""
+def _map_limit() -> int | None:
+    """The kernel's limit on a process's memory mappings (Linux), else None."""
     try:
-        with open("/proc/self/maps", "rb") as maps, open("/proc/sys/vm/max_map_count") as limit:
-            return sum(1 for _ in maps), int(limit.read())
+        with open("/proc/sys/vm/max_map_count") as f:
+            return int(f.read())
     except OSError:
         return None
+
+
+_MAP_LIMIT = _map_limit()
+
+
+def _map_count() -> int:
+    with open("/proc/self/maps", "rb") as maps:
+        return sum(1 for _ in maps)
 
 
 @pytest.fixture(autouse=True)
@@ -60,7 +68,6 @@ def compiled_programs_released():
     then failed inside XLA, which crashed the worker (a segfault, or a corrupted interpreter that failed at
     random later). Past half the limit the caches are dropped; later tests only compile again."""
     yield
-    counted = _map_count()
-    if counted and counted[0] > counted[1] // 2:
+    if _MAP_LIMIT and _map_count() > _MAP_LIMIT // 2:
         jax.clear_caches()
         gc.collect()
