@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 
 import configs
-from experiments import catalog, common, status
+from experiments import catalog, common, mappings, status
 
 # published beside the tables: everything an experiment writes except its trained runs and its caches
 _NOT_PUBLISHED = ("runs", "checkpoints", "cache", "frames")
@@ -132,6 +132,9 @@ def main(argv=None) -> dict:
         # recorded as each finishes: a kill or a crash later in a pipeline of hours keeps what it measured
         done = {**record, "experiments": {exp.name: record["experiments"][exp.name]}}
         common.write_json(work / "reproduce.json", merged_record(work / "reproduce.json", done))
+        if mappings.release_if_crowded():  # the experiments share this process; the next compiles afresh
+            print(f"[reproduce] {exp.name}: released jax's compiled programs (memory mappings past half the "
+                  f"kernel's limit of {mappings.limit():,})", file=sys.stderr, flush=True)
     record["wall_s"] = round(time.perf_counter() - t0, 1)
     record["load_end"] = list(os.getloadavg())
     common.write_json(work / "reproduce.json", merged_record(work / "reproduce.json", record))

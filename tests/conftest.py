@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import gc
 import os
 from pathlib import Path
 
-import jax
 import pytest
+
+from experiments import mappings
 
 ROOT = Path(__file__).resolve().parents[1]
 # Tests run the smoke preset: a command that forgot its --data/--out would land in one of these defaults
@@ -44,30 +44,9 @@ def users_folders_untouched():
     assert not changed, f"the tests wrote into the user's folders (pass --data/--out under tmp_path): {changed[:5]}"
 
 
-def _map_limit() -> int | None:
-    """The kernel's limit on a process's memory mappings (Linux), else None."""
-    try:
-        with open("/proc/sys/vm/max_map_count") as f:
-            return int(f.read())
-    except OSError:
-        return None
-
-
-_MAP_LIMIT = _map_limit()
-
-
-def _map_count() -> int:
-    with open("/proc/self/maps", "rb") as maps:
-        return sum(1 for _ in maps)
-
-
 @pytest.fixture(autouse=True)
 def compiled_programs_released():
-    """XLA maps each compiled CPU program's code in ~1,000 small mappings, and jax's caches keep every program a
-    worker ever compiled. A worker of the whole suite reached Linux's 65,530 mappings at ~90% of the run: mmap
-    then failed inside XLA, which crashed the worker (a segfault, or a corrupted interpreter that failed at
-    random later). Past half the limit the caches are dropped; later tests only compile again."""
+    """A worker of the whole suite compiles thousands of programs: past half the kernel's limit on mappings
+    (experiments.mappings) jax's caches are dropped, so the worker never reaches it."""
     yield
-    if _MAP_LIMIT and _map_count() > _MAP_LIMIT // 2:
-        jax.clear_caches()
-        gc.collect()
+    mappings.release_if_crowded()

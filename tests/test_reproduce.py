@@ -12,9 +12,11 @@ from pathlib import Path
 
 import _bench_plans
 import _notebooks
+import jax
+import pytest
 
 import configs
-from experiments import catalog, common, kernel, pareto, reproduce, status
+from experiments import catalog, common, kernel, mappings, pareto, reproduce, status
 from experiments.bench import suite as bench_suite
 from ffjax import registry
 from ffjax.tasks import pushing
@@ -143,3 +145,30 @@ def test_each_finished_experiment_is_recorded_before_the_next_starts(tmp_path, m
     assert set(saved["experiments"]) == set(names[:2])
     assert all(e["wall_s"] == 12.5 and e["fresh"] for e in saved["experiments"].values())
 
+
+
+def test_the_pipeline_releases_compiled_programs_between_experiments(tmp_path, monkeypatch, capsys):
+    """The experiments share one process: after each, past half the kernel's limit on memory mappings, jax's
+    caches are dropped (experiments.mappings), and the call says so."""
+    names = [e.name for e in catalog.pipeline()][:2]
+    monkeypatch.setattr(reproduce, "run_one", lambda exp, argv: 1.0)
+    calls = []
+    monkeypatch.setattr(mappings, "release_if_crowded", lambda: calls.append(1) or True)
+    reproduce.main(["--preset", "smoke", "--only", *names, "--work", str(tmp_path / "w"), "--no-publish", "--quiet"])
+    assert len(calls) == 2
+    assert capsys.readouterr().err.count("released jax's compiled programs") == 2
+
+
+def test_release_if_crowded_drops_jax_caches_only_past_the_share(monkeypatch):
+    f = jax.jit(lambda x: x + 1)
+    f(1)
+    assert f._cache_size() == 1
+    if mappings.count() is None:
+        pytest.skip("no /proc/self/maps here")
+    monkeypatch.setattr(mappings, "limit", lambda: 10**9)  # far above what any process holds: nothing happens
+    assert not mappings.release_if_crowded()
+    assert f._cache_size() == 1
+    monkeypatch.setattr(mappings, "limit", lambda: 2 * mappings.count() - 2)  # just past half of it
+    assert mappings.release_if_crowded()
+    assert f._cache_size() == 0
+    assert f(1) == 2  # compiles again
