@@ -390,7 +390,7 @@ def stick(held: np.ndarray, force: np.ndarray, layer: Layer, depths=None, tol: f
     for side, idx in groups:  # each grid's and depth's kernels built once, before the threads read them
         for d in np.unique(depths[idx]):
             _hold_kernels(layer, side, [d])
-    traction = np.zeros((len(held), 3) + layer.shape, np.float32)
+    solved: list = [None] * len(held)  # each press's traction: (on its window, the window) or (the grid, None)
     iterations = np.empty(len(held), np.int32)
     run = _traction_program(float(layer.dx) ** 2, float(tol), int(max_iter))
     for side, idx in groups:
@@ -400,14 +400,25 @@ def stick(held: np.ndarray, force: np.ndarray, layer: Layer, depths=None, tol: f
                                                   _hold_kernels(layer, side, _padded(d[a:b], m))), len(idx))  # noqa: B023
         r = _joined(parts, len(idx), ("t", "iterations"))
         iterations[idx] = r["iterations"]
-        if side:
-            _place(traction, idx, r["t"], windows[idx])
-        else:
-            traction[idx] = r["t"]
+        for t, i in zip(r["t"], idx):
+            solved[i] = (t, windows[i] if side else None)
+
+    def traction(a: int, b: int, m: int) -> np.ndarray:
+        """The traction of presses [a, b) on the whole grid, padded to m with the first: built for each call, as
+        the batch's whole (N, 3, H, W) would be ~0.25 MB a press (264 MB for a quick shard's 1,000 solves)."""
+        out = np.zeros((m, 3) + layer.shape, np.float32)
+        for k, i in enumerate([*range(a, b), *[a] * (m - (b - a))]):
+            t, w = solved[i]
+            if w is None:
+                out[k] = t
+            else:
+                _put(out[k], t, w)
+        return out
+
     fields = _fields_program(None if crop is None else tuple(int(v) for v in crop))
-    parts = _solve_pieces(lambda a, b, m: fields(_padded(held[a:b], m), _padded(traction[a:b], m),
-                                                          _depth_kernels(layer, _padded(depths[a:b], m), 0),
-                                                          _depth_kernels(layer, _padded(depths[a:b], m), 1)),
+    parts = _solve_pieces(lambda a, b, m: fields(_padded(held[a:b], m), traction(a, b, m),
+                                                 _depth_kernels(layer, _padded(depths[a:b], m), 0),
+                                                 _depth_kernels(layer, _padded(depths[a:b], m), 1)),
                           len(held))
     return {**_joined(parts, len(held), ("fields", "s")), "iterations": iterations}
 
@@ -449,11 +460,15 @@ def _into_window(x: np.ndarray, window, fill) -> np.ndarray:
     return out
 
 
+def _put(grid: np.ndarray, solution: np.ndarray, window) -> None:
+    """A window's solution (..., side, side) into its region of the grid (whose other cells stay as they are)."""
+    grid[(...,) + _region(window)] = solution[..., : window[2], : window[3]]
+
+
 def _place(grids: np.ndarray, idx, solutions: np.ndarray, windows) -> None:
-    """Each window's solution (..., side, side) into its region of grids[i] (whose other cells stay as they are,
-    0 where a solve's loads cannot lie)."""
+    """Each window's solution into its region of grids[i] (`_put`; 0 elsewhere where a solve's loads cannot lie)."""
     for i, x, w in zip(idx, solutions, windows):
-        grids[i][(...,) + _region(w)] = x[..., : w[2], : w[3]]
+        _put(grids[i], x, w)
 
 
 def _groups(windows: np.ndarray) -> list[tuple[int, np.ndarray]]:
