@@ -56,6 +56,22 @@ def test_windowed_stick_is_the_whole_grid_stick(depth):
     assert np.abs(win["fields"] - whole["fields"]).max() < 1e-3 * scale
 
 
+def test_record_solves_lists_each_press_of_each_solve_with_its_window_and_iterations():
+    layer = _layer()
+    held = np.stack([_blob(layer.shape, 45, 50, 5, 8), _blob(layer.shape, 30, 60, 3, 3)])
+    wins = batched.windows(held)
+    with batched.record_solves() as seen:
+        r = batched.stick(held, np.array([[0.3, -0.1], [0.0, 0.2]]), layer, windows=wins)
+        with batched.record_solves() as inner:  # a nested block records apart and gives the outer one back
+            batched.stick(held[:1], np.array([[0.1, 0.0]]), layer)
+        batched.stick(held[1:], np.array([[0.0, 0.1]]), layer)
+    assert seen == [("stick", int(wins[0, 4]), layer.shape, int(r["iterations"][0])),
+                    ("stick", int(wins[1, 4]), layer.shape, int(r["iterations"][1])),
+                    ("stick", 0, layer.shape, seen[2][3])]
+    assert [k[:3] for k in inner] == [("stick", 0, layer.shape)] and inner[0][3] >= 1
+    assert batched._RECORD is None
+
+
 def test_windowed_normal_is_the_whole_grid_normal():
     layer = _layer()
     y, x = np.mgrid[:90, :100]

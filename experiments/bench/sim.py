@@ -8,7 +8,6 @@ measurement: `--data`, as the pipeline gives it)."""
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import subprocess
@@ -17,6 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
 import configs
@@ -87,40 +87,15 @@ def rates(sizes: dict, batches, n: int, reference_n: int, sensor: str = "mini-1-
     return out
 
 
-@contextlib.contextmanager
-def _solves_seen():
-    """Record every layer solve the simulator runs inside: (kind, window side (0: the whole grid), grid shape,
-    iterations) for each press of each call of batched.normal and batched.stick (the solvers left as they are)."""
-    seen, normal, stick = [], batched.normal, batched.stick
-
-    def watch(kind, solve):
-        def run(loads, force, layer, *args, **kw):
-            r = solve(loads, force, layer, *args, **kw)
-            sides = kw["windows"][:, 4] if kw.get("windows") is not None else np.zeros(len(loads), int)
-            seen.extend((kind, int(s), layer.shape, int(i)) for s, i in zip(sides, r["iterations"]))
-            return r
-        return run
-
-    batched.normal, batched.stick = watch("normal", normal), watch("stick", stick)
-    try:
-        yield seen
-    finally:
-        batched.normal, batched.stick = normal, stick
-
-
 def _transform_pair_s(shape, channels: int, batch: int, calls: int = 50) -> float:
-    """Seconds a press of one rfft2 and irfft2 of `channels` channels on `shape`, with a kernel product between,
-    timed over a batch of `batch` (one jitted program, as a solve's iteration runs them)."""
-    import jax
-    import jax.numpy as jnp
-
-    x = jnp.ones((batch, channels, *shape), jnp.float32)
-    kernel = jnp.ones((shape[0], shape[1] // 2 + 1), jnp.float32)
-    pair = jax.jit(lambda x: jnp.fft.irfft2(kernel * jnp.fft.rfft2(x), s=x.shape[-2:]))
-    x = pair(x).block_until_ready()
+    """Seconds a press of one rfft2 and irfft2 of `channels` channels on `shape`, with a kernel product between
+    (`batched._apply`, the solves' own program), timed over a batch of `batch`."""
+    x = jax.device_put(np.ones((batch, channels, *shape), np.float32))
+    kernel = jax.device_put(np.ones((shape[0], shape[1] // 2 + 1), np.float32))
+    x = batched._apply(x, kernel).block_until_ready()
     t0 = time.perf_counter()
     for _ in range(calls):
-        x = pair(x)
+        x = batched._apply(x, kernel)
     x.block_until_ready()
     return (time.perf_counter() - t0) / calls / batch
 
@@ -142,7 +117,7 @@ def floor(n: int, size, sensor: str = "mini-1-gel1") -> dict:
     batched.THREADS = 1
     try:
         _press(p, sensor, size, 0, n)
-        with _solves_seen() as seen:
+        with batched.record_solves() as seen:
             t0 = time.perf_counter()
             _press(p, sensor, size, 0, n)
             seconds = time.perf_counter() - t0

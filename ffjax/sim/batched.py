@@ -32,6 +32,7 @@ program on the same presses whichever thread runs it, so the results do not depe
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -47,6 +48,7 @@ from ffjax.sim.elastic_layer import FAR, Layer
 BATCHES = (1, 8, 32)
 MAX_BATCH: int | None = None  # None: max_batch() chooses by device; the benchmark sets it to time each size
 THREADS: int | None = None  # None: threads() chooses; a dataset worker process sets 1 (one process per core)
+_RECORD: list | None = None  # set inside record_solves()
 RESTART = 1e-3  # x thickness: an approach that moves more than this in one iteration restarts the CG directions
 RUNAWAY = 200  # iterations after which a press beyond the refused approach stops
 _TINY = 1e-30  # guards divisions that are 0 / 0 only for a press already frozen
@@ -106,6 +108,24 @@ def use_disk_cache() -> Path | None:
     # and every process compiled its ~130 programs again (the quick dataset's 2 workers: 133 s of compiling)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     return folder
+
+
+@contextlib.contextmanager
+def record_solves():
+    """Inside the block, each solve of `normal` and `stick` appends (kind, window side (0: the whole grid), grid
+    shape, iterations) for each of its presses to the list this yields (the benchmark's floor reads it)."""
+    global _RECORD
+    before, _RECORD = _RECORD, []
+    try:
+        yield _RECORD
+    finally:
+        _RECORD = before
+
+
+def _recorded(kind: str, windows, shape, iterations) -> None:
+    if _RECORD is not None:
+        sides = windows[:, 4] if windows is not None else np.zeros(len(iterations), int)
+        _RECORD.extend((kind, int(s), tuple(shape), int(i)) for s, i in zip(sides, iterations))
 
 
 def _stiffen(u, t, eps, psi):
@@ -243,7 +263,9 @@ def normal(hb: np.ndarray, fz: np.ndarray, layer: Layer, thickness: float, eps: 
     solve = functools.partial(_normal_grid, thickness=thickness, eps=eps, psi=psi, refuse_above=refuse_above,
                               tol=tol, outer_tol=outer_tol, max_iter=max_iter)
     if windows is None:
-        return solve(hb, fz, layer, _kernels(layer))
+        out = solve(hb, fz, layer, _kernels(layer))
+        _recorded("normal", None, layer.shape, out["iterations"])
+        return out
     out = {"delta": np.empty(len(hb), np.float32), "u": None, "p": np.zeros_like(hb),
            "iterations": np.empty(len(hb), np.int32)}
     for side, idx in _groups(windows):
@@ -258,6 +280,7 @@ def normal(hb: np.ndarray, fz: np.ndarray, layer: Layer, thickness: float, eps: 
     kernel = _kernels(layer)
     out["u"] = np.concatenate(_solve_pieces(lambda a, b, m: _apply(_padded(out["p"][a:b], m), kernel)[: b - a],
                                             len(hb)))
+    _recorded("normal", windows, layer.shape, out["iterations"])
     return out
 
 
@@ -420,6 +443,7 @@ def stick(held: np.ndarray, force: np.ndarray, layer: Layer, depths=None, tol: f
                                                  _depth_kernels(layer, _padded(depths[a:b], m), 0),
                                                  _depth_kernels(layer, _padded(depths[a:b], m), 1)),
                           len(held))
+    _recorded("stick", windows, layer.shape, iterations)
     return {**_joined(parts, len(held), ("fields", "s")), "iterations": iterations}
 
 
