@@ -34,7 +34,7 @@ def count() -> int | None:
 
 def release_if_crowded(share: float = 0.5) -> bool:
     """Drop jax's compiled programs (`jax.clear_caches`) when this process holds more than `share` of the
-    kernel's limit on mappings; whether it did. Nowhere else than Linux: nothing to do."""
+    kernel's limit on mappings; whether it did (off Linux: never)."""
     top, now = limit(), count()
     if not top or now is None or now <= share * top:
         return False
