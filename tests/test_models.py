@@ -188,3 +188,28 @@ def test_fast_upconv_equals_upsample_then_conv():
     fast, slow = both()
     assert fast.shape == (2, 6, 10, 6)
     np.testing.assert_allclose(np.asarray(fast), np.asarray(slow), atol=1e-5)
+
+
+@pytest.mark.parametrize("side, stride, kernel", [(4, 2, 3), (2, 1, 3), (2, 1, 1), (8, 2, 3), (3, 2, 7)])
+def test_resnet_conv_equals_the_library_convolution(side, stride, kernel):
+    # the ResNet's convolution takes one matrix product where the window outgrows the map it makes
+    # (ffjax.models.resnet._conv_op); the forward and both gradients equal lax's convolution
+    from jax import lax
+
+    from ffjax.models import resnet
+
+    k1, k2 = jax.random.split(jax.random.PRNGKey(0))
+    x = jax.random.normal(k1, (3, side, side + 1, 5))
+    w = jax.random.normal(k2, (kernel, kernel, 5, 6))
+    pad = ((kernel // 2,) * 2,) * 2
+    dims = lax.conv_dimension_numbers(x.shape, w.shape, ("NHWC", "HWIO", "NHWC"))
+
+    def loss(conv):
+        return lambda x, w: jnp.sum(jnp.sin(conv(x, w, (stride, stride), pad, dimension_numbers=dims)))
+
+    ours, lib = loss(resnet._conv_op), loss(lax.conv_general_dilated)
+    made = (side + 2 * (kernel // 2) - kernel) // stride + 1
+    assert ("conv_general_dilated" in str(jax.make_jaxpr(ours)(x, w))) == (made >= kernel)
+    np.testing.assert_allclose(ours(x, w), lib(x, w), rtol=1e-5)
+    for a, b in zip(jax.grad(ours, (0, 1))(x, w), jax.grad(lib, (0, 1))(x, w)):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
