@@ -16,8 +16,6 @@ import functools
 import time
 from pathlib import Path
 
-from tqdm import tqdm
-
 from experiments import aggregate, common, kernel, tables, training_figures, training_report
 from ffjax import registry
 
@@ -30,6 +28,7 @@ def main(argv=None) -> dict:
                     help=f"registry names (default: the paper set {', '.join(registry.PAPER_SET)})")
     ap.add_argument("--seeds", type=int, default=None,
                     help="seeds per method (default: the preset's `seeds`: 1, 3 at full)")
+    common.add_workers(ap)
     args = ap.parse_args(argv)
     cfg = common.config_from_args(ap, args)
     methods = args.methods or list(registry.PAPER_SET)
@@ -37,14 +36,17 @@ def main(argv=None) -> dict:
         registry.get(m)  # unknown names fail here, before any work
     seeds = common.n_seeds(ap, args, cfg)
     out = Path(args.out or common.ROOT / "results" / f"ablation-{args.preset}")
-    results = run(cfg, methods, seeds, out, data_dir=args.data, force=args.force, progress=not args.quiet)
+    results = run(cfg, methods, seeds, out, data_dir=args.data, force=args.force, progress=not args.quiet,
+                  workers=common.workers(ap, args))
     print(tables.console_summary(results))
     print(f"\nwrote {out}/results.json, table1.md, table2.md, table3.md, training.md and plots")
     return results
 
 
-def run(cfg: dict, methods, n_seeds: int, out, data_dir=None, force: bool = False, progress: bool = True) -> dict:
-    """Every stage for `methods` x `n_seeds`; returns (and writes) the results dict."""
+def run(cfg: dict, methods, n_seeds: int, out, data_dir=None, force: bool = False, progress: bool = True,
+        workers: int = 1) -> dict:
+    """Every stage for `methods` x `n_seeds`, `workers` runs training at once (kernel.run_all); returns (and
+    writes) the results dict."""
     out = Path(out).absolute()
     out.mkdir(parents=True, exist_ok=True)
     timings: dict = {}
@@ -61,15 +63,16 @@ def run(cfg: dict, methods, n_seeds: int, out, data_dir=None, force: bool = Fals
 
     seeds = kernel.seeds(cfg, n_seeds)
     per_run, checkpoints, train_s, eval_s = {}, {}, {}, {}
-    jobs = [(s, seed) for s in specs for seed in seeds]
-    for spec, seed in tqdm(jobs, desc="ablation runs", disable=not progress or len(jobs) < 2):
-        r = kernel.run(cfg, spec, seed, data_root, out, backbone=functools.partial(backbones.get, spec.backbone),
-                       force=force, progress=progress)
+    jobs = [kernel.Job(cfg, spec, seed, data_root, out, backbone=functools.partial(backbones.get, spec.backbone))
+            for spec in specs for seed in seeds]
+    for job, r in zip(jobs, kernel.run_all(jobs, workers, force, progress, "ablation runs"), strict=True):
+        spec = job.spec
         train_s.setdefault(spec.name, []).append(r.train_s)
         eval_s.setdefault(spec.name, []).append(r.eval_s)
         per_run.setdefault(spec.name, []).append(r.result)
         checkpoints.setdefault(spec.name, []).append(str(r.dir))
-    timings.update(train_s=train_s, eval_s=eval_s, total_s=round(time.perf_counter() - t0, 1))
+    # train_s of runs trained side by side is one core's (docs/experiments.md)
+    timings.update(train_s=train_s, eval_s=eval_s, train_workers=workers, total_s=round(time.perf_counter() - t0, 1))
 
     results = aggregate.aggregate(per_run)
     results.update(preset=cfg["preset"], commit=common.git_commit(), machine=common.machine(), seeds=seeds,

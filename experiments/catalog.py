@@ -13,6 +13,7 @@ from collections.abc import Callable
 # dependencies; for a command outside the import graph (tests/), the whole library and shared machinery
 _CORE = ("configs", "pyproject.toml")
 _DRAWS = ("experiments/tables.py", "experiments/style.py")  # a diagnostic that only draws with them
+_TRAINS = ("--quiet", "--data", "--workers")  # an experiment that trains runs: kernel.run_all's workers too
 _WHOLE = ("ffjax", "experiments/common.py", "experiments/kernel.py", "experiments/paper_numbers.py")
 
 
@@ -31,8 +32,8 @@ class Experiment:
     cell_seeds: the number of seeds of each of its cells, from its results.json, where cells differ (a sweep's
     cells reused from the ablation carry its seeds; None: the result's own seeds); speed: its numbers are the
     speed of the code it runs, so a change certified to give the same outputs (experiments.same_output) still
-    changes them; on_request: `reproduce` runs it only when named; flags: which of reproduce's --quiet and --data
-    (the pipeline's dataset) its command takes."""
+    changes them; on_request: `reproduce` runs it only when named; flags: which of reproduce's --quiet, --data
+    (the pipeline's dataset) and --workers its command takes."""
 
     name: str
     module: str
@@ -176,12 +177,13 @@ EXPERIMENTS = (
                "Tables I-III: every method's force error on unseen objects, other sensors, and after calibration; "
                "the training report", _has("table1"), _replot_ablation,
                args=lambda preset, work: ["--preset", preset, *_seeds(preset)],
-               figures=("experiments/tables.py", "experiments/training_figures.py", "experiments/style.py")),
+               figures=("experiments/tables.py", "experiments/training_figures.py", "experiments/style.py"),
+               flags=_TRAINS),
     Experiment("sweep_loss", "experiments.sweep_loss",
                "Does the depth head help? DINO's error against the depth-loss weight beta/alpha",
                _has("per_beta"), _replot_sweep, args=_trains_seeds,
                reuses="ablation", figures=("experiments/tables.py", "experiments/style.py"),
-               cell_seeds=lambda r: [len(v["per_seed"]) for v in r["per_beta"].values()]),
+               cell_seeds=lambda r: [len(v["per_seed"]) for v in r["per_beta"].values()], flags=_TRAINS),
     # on request: its two more datasets (shares 0 and 0.5) and their trainings cost ~80 min on a 2-core Zen 1 VM
     # (~35 on Zen 4), more than the sweep, the chart and stability together; it probes a parameter no frame can
     # measure, where the rest are the paper's results and their companions
@@ -191,12 +193,14 @@ EXPERIMENTS = (
                args=_pattern_args, reuses="ablation", figures=("experiments/tables.py", "experiments/style.py"),
                on_request=True,
                cell_seeds=lambda r: [len(v["per_seed"]) for c in r["per_share"].values()
-                                     for v in c["methods"].values()]),
+                                     for v in c["methods"].values()],
+               flags=_TRAINS),
     Experiment("pareto", "experiments.pareto",
                "Speed against accuracy: error against latency, training throughput and size, per method and size",
                _has("cells", "fronts"), _replot_pareto, args=_trains_seeds, reuses="ablation",
                figures=("experiments/tables.py", "experiments/style.py"),  # tables: the footer's seeds in words
-               cell_seeds=lambda r: [len(c["seeds"]) for c in r["cells"] if isinstance(c, dict) and "seeds" in c]),
+               cell_seeds=lambda r: [len(c["seeds"]) for c in r["cells"] if isinstance(c, dict) and "seeds" in c],
+               flags=_TRAINS),
     Experiment("stability", "experiments.stability",
                "Where each method fails: the seed spread and the error against noise, lighting, force, shear, "
                "drift and more", _has("factors", "seed_spread"), _replot_stability, args=_reads_ablation,

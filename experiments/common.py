@@ -77,6 +77,22 @@ def base_parser(description: str, default_preset: str = "quick", costs: dict | N
     return ap
 
 
+def add_workers(ap) -> None:
+    """--workers, for the experiments that train several runs (experiments.kernel.run_all)."""
+    ap.add_argument("--workers", type=int, default=None, metavar="N",
+                    help="training runs at once, each in its own process on its share of the cores (default: 2 on "
+                         "a CPU with 2 or more cores, 1 on a GPU; 1: one at a time on every core)")
+
+
+def workers(ap, args) -> int:
+    """--workers, else experiments.kernel.default_workers()."""
+    if args.workers is not None and args.workers < 1:
+        ap.error("--workers must be at least 1")
+    from experiments import kernel
+
+    return args.workers or kernel.default_workers()
+
+
 def config_from_args(ap, args) -> dict:
     """The validated config of --preset and --set; a bad key or value is a usage error (exit 2). Says which
     preset runs and what it costs (stderr), before any work."""

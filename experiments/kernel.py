@@ -11,17 +11,26 @@ method's spec, the seed and the dataset's config); a finished stage is not redon
 from its checkpoints. The evaluation is cached in RUN/eval.json under a key of the run's stage.json and the
 calibration config. A folder of another experiment (`reuse_from`, an ablation's) is used as it stands when
 its stage holds the same key and is done.
+
+Several runs: `run_all(jobs, workers=2)` trains (and evaluates) the jobs that need training two at a time, each
+in its own process pinned to its half of the cores (default_workers: on a CPU). On the 2-core CPU a quick
+train step takes 159 ms on one core against 94 on two (DINO RD; ResNet RD 139 against 84), so two runs side
+by side finish 1.2x sooner. Their recorded train seconds are then one core's, beside another run.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
 import copy
 import dataclasses
+import multiprocessing
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 import configs
 from experiments import common, paper_numbers
@@ -74,15 +83,19 @@ def train_key(cfg: dict, spec, seed: int, data_root: Path) -> str:
     return common.fingerprint("train", keyed, spec.__dict__, seed, manifest.get("config"))
 
 
+def trained(folder: Path, cfg: dict, spec, seed: int, data_root: Path) -> bool:
+    """Whether folder holds this method and seed trained to the end with the same key."""
+    info = common.read_json(Path(folder) / "stage.json") or {}
+    return info.get("status") == "done" and info.get("key") == train_key(cfg, spec, seed, data_root)
+
+
 def reusable(reuse_from, cfg: dict, spec, seed: int, data_root: Path) -> Path | None:
     """reuse_from's run folder for this method and seed (absolute) when it finished training with the same
     key, else None (also when reuse_from is None)."""
     if reuse_from is None:
         return None
     folder = run_dir(reuse_from, spec.name, seed).absolute()
-    info = common.read_json(folder / "stage.json") or {}
-    same = info.get("key") == train_key(cfg, spec, seed, data_root)
-    return folder if same and info.get("status") == "done" else None
+    return folder if trained(folder, cfg, spec, seed, data_root) else None
 
 
 def pretrained_backbone(cfg: dict, kind: str, data_root: Path, force: bool, progress: bool):
@@ -202,3 +215,109 @@ def run(cfg: dict, spec, seed: int, data_root: Path, out, *, backbone: Callable 
     t = time.perf_counter()
     result = evaluate(cfg, folder, data_root, force)
     return Run(folder, result, train_s, round(time.perf_counter() - t, 1), reused)
+
+
+@dataclasses.dataclass(frozen=True)
+class Job:
+    """One method x seed for run_all: run()'s arguments."""
+
+    cfg: dict
+    spec: object
+    seed: int
+    data_root: Path
+    out: Path
+    backbone: Callable | None = None
+    reuse_from: Path | None = None
+    size: str | None = None
+
+    def folder(self) -> Path:
+        """Where run() trains it (absolute) when it is not reused."""
+        return run_dir(self.out, self.spec.name, self.seed, self.size).absolute()
+
+    def needs_training(self, force: bool) -> bool:
+        if reusable(self.reuse_from, self.cfg, self.spec, self.seed, self.data_root) is not None:
+            return False
+        return force or not trained(self.folder(), self.cfg, self.spec, self.seed, self.data_root)
+
+
+def default_workers() -> int:
+    """How many runs train at once by default: two on a CPU with at least two cores (each on its half), one
+    on an accelerator (one device; runs there would only queue)."""
+    import jax
+
+    return min(2, len(os.sched_getaffinity(0))) if jax.default_backend() == "cpu" else 1
+
+
+def run_all(jobs: list[Job], workers: int = 1, force: bool = False, progress: bool = True,
+            desc: str = "runs") -> list[Run]:
+    """run() for every job, in order. With workers > 1, the jobs that need training are trained and evaluated
+    `workers` at a time first, each worker process pinned to its share of the cores; the odd ones left over train
+    here on every core (alone on one core a run would take longer). A pooled run's train_s / eval_s are the
+    seconds its worker took."""
+    pooled = {}
+    pending = [j for j in jobs if j.needs_training(force)] if workers > 1 else []
+    pending = pending[:len(pending) - len(pending) % workers]
+    if pending:
+        pooled = _train_pooled(pending, workers, force, progress, desc)
+    runs = []
+    for job in tqdm(jobs, desc=desc, disable=not progress or len(jobs) < 2 or bool(pooled)):
+        r = run(job.cfg, job.spec, job.seed, job.data_root, job.out, backbone=job.backbone,
+                reuse_from=job.reuse_from, size=job.size, force=force and job.folder() not in pooled,
+                progress=progress)
+        if job.folder() in pooled and not r.reused:
+            r = dataclasses.replace(r, train_s=pooled[job.folder()][0], eval_s=pooled[job.folder()][1])
+        runs.append(r)
+    return runs
+
+
+def _train_pooled(jobs: list[Job], workers: int, force: bool, progress: bool, desc: str) -> dict:
+    """Train and evaluate jobs in `workers` spawned processes, each pinned to a disjoint share of this process's
+    cores; {folder: (train_s, eval_s)}. The backbones load here (pretraining, if needed, on every core) and
+    travel as numpy arrays. A failed run stops the rest and raises, naming its folder; finished runs stay."""
+    import jax
+
+    cores = sorted(os.sched_getaffinity(0))
+    ctx = multiprocessing.get_context("spawn")  # jax's threads do not survive a fork
+    shares = ctx.Queue()
+    for share in np.array_split(cores, workers):
+        shares.put({int(c) for c in share})
+    # before the workers start: a backbone pretrained here has every core to itself
+    inits = [jax.tree.map(np.asarray, job.backbone()) if job.backbone is not None and job.spec.pretrained else None
+             for job in jobs]
+    done = {}
+    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_pin,
+                                                initargs=(shares,)) as pool:
+        futures = {pool.submit(_train_and_evaluate, dataclasses.replace(job, backbone=None), init, force): job
+                   for job, init in zip(jobs, inits, strict=True)}
+        bar = tqdm(total=len(jobs), desc=f"{desc} ({workers} at a time)", disable=not progress)
+        try:
+            for future in concurrent.futures.as_completed(futures):
+                folder = futures[future].folder()
+                try:
+                    done[folder] = future.result()
+                except Exception as e:
+                    raise RuntimeError(f"training {folder} in a worker process failed: {e}") from e
+                bar.update()
+        except BaseException:
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        finally:
+            bar.close()
+    return done
+
+
+def _pin(shares) -> None:
+    """A worker's start: its cores, before jax makes its thread pool (sized by the cores it may use)."""
+    os.sched_setaffinity(0, shares.get())
+
+
+def _train_and_evaluate(job: Job, init, force: bool) -> tuple[float, float]:
+    """In a worker: train() and evaluate() one job; their wall seconds."""
+    t = time.perf_counter()
+    folder = job.folder()
+    train(job.cfg, job.spec, job.seed, job.data_root, folder, (lambda: init) if init is not None else None,
+          force, progress=False)
+    train_s = round(time.perf_counter() - t, 1)
+    t = time.perf_counter()
+    evaluate(job.cfg, folder, job.data_root, force)
+    return train_s, round(time.perf_counter() - t, 1)

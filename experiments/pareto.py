@@ -75,6 +75,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--ablation", default=None,
                     help="ablation results folder whose finished runs are reused for the preset's own size "
                          "(default: results/ablation-<preset>; 'none' to never reuse)")
+    common.add_workers(ap)
     args = ap.parse_args(argv)
     if args.preset not in REPEATS:
         ap.error(f"--preset {args.preset}: pareto runs at {', '.join(REPEATS)} (paper scale is for a GPU)")
@@ -90,7 +91,7 @@ def main(argv=None) -> dict:
     out = Path(args.out or common.ROOT / "results" / f"pareto-{args.preset}")
     reuse = None if args.ablation == "none" else common.ablation_folder(ap, args.ablation, args.preset)
     results = run(cfg, methods, sizes, seeds, out, data_dir=args.data, full_grid=args.grid == "full", force=args.force,
-                  progress=not args.quiet, reuse_from=reuse)
+                  progress=not args.quiet, reuse_from=reuse, workers=common.workers(ap, args))
     print(results["markdown"])
     print(f"wrote {out}/pareto.png, pareto.md, pareto.csv, results.json")
     return results
@@ -249,8 +250,9 @@ def measure(cells: dict, arrays: dict, batch_size: int, repeats: dict, progress:
 
 # ---------------------------------------------------------------- the experiment
 def run(cfg: dict, methods, sizes, n_seeds: int, out, data_dir=None, full_grid: bool = False,
-        force: bool = False, progress: bool = True, reuse_from=None) -> dict:
-    """Train/evaluate every cell (cached), time them all in one phase, write the chart, tables and JSON."""
+        force: bool = False, progress: bool = True, reuse_from=None, workers: int = 1) -> dict:
+    """Train/evaluate every cell (cached, `workers` runs training at once: kernel.run_all), time them all in one
+    phase, write the chart, tables and JSON."""
     from ffjax import data, store
     from ffjax.sim import dataset
 
@@ -260,26 +262,28 @@ def run(cfg: dict, methods, sizes, n_seeds: int, out, data_dir=None, full_grid: 
     data_root = common.ensure_data(cfg, data_dir, progress=progress)
     seeds = kernel.seeds(cfg, n_seeds)
     cells = grid(cfg, methods, sizes, full=full_grid)
-    per_run, run_dirs, reused, cell_seeds = {}, {}, [], {}
-    for size, method in tqdm(cells, desc="pareto cells", disable=not progress or len(cells) < 2):
+    per_run, run_dirs, reused, cell_seeds, jobs = {}, {}, [], {}, []
+    for size, method in cells:
         spec, scfg = registry.get(method), size_cfg(cfg, size)
         label = f"{method}@{size}"
-        t = time.perf_counter()
         own_size = not size_table(cfg["preset"])[size][1]  # the ablation trains exactly this model
         # loaded once per cell, and only if one of its seeds trains here
         backbone = functools.cache(functools.partial(backbone_for, cfg, scfg, size, spec, data_root, force, progress))
         source = reuse_from if own_size else None
         # a cell the ablation trained also gets every further seed it has, at no cost
         cell_seeds[label] = kernel.seeds_for(scfg, spec, n_seeds, data_root, source)
-        for seed in cell_seeds[label]:
-            r = kernel.run(scfg, spec, seed, data_root, out, backbone=backbone, reuse_from=source, size=size,
-                           force=force, progress=progress)
-            if r.reused:
-                reused.append(str(r.dir))
-            per_run.setdefault(label, []).append(r.result)
-            run_dirs.setdefault(label, []).append(r.dir)
-        timings.setdefault("cells_s", {})[label] = round(time.perf_counter() - t, 1)
-    timings["train_eval_s"] = round(time.perf_counter() - t_start, 1)
+        jobs += [(label, kernel.Job(scfg, spec, seed, data_root, out, backbone=backbone, reuse_from=source, size=size))
+                 for seed in cell_seeds[label]]
+    runs = kernel.run_all([j for _, j in jobs], workers, force, progress, "pareto runs")
+    for (label, _), r in zip(jobs, runs, strict=True):
+        if r.reused:
+            reused.append(str(r.dir))
+        per_run.setdefault(label, []).append(r.result)
+        run_dirs.setdefault(label, []).append(r.dir)
+        # a run trained side by side with another counts one core's seconds (kernel.run_all)
+        cells_s = timings.setdefault("cells_s", {})
+        cells_s[label] = round(cells_s.get(label, 0.0) + r.train_s + r.eval_s, 1)
+    timings.update(train_eval_s=round(time.perf_counter() - t_start, 1), train_workers=workers)
 
     agg = aggregate.aggregate(per_run)
     # Timing: the first seed's checkpoint of each cell (all seeds share one architecture).

@@ -15,6 +15,7 @@ Writes OUT/results.json, pattern_share.md, pattern_share.csv, pattern_share.png.
 from __future__ import annotations
 
 import copy
+import functools
 import sys
 import time
 from pathlib import Path
@@ -63,6 +64,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--seeds", type=int, default=None, help="seeds per method and share (default: the preset's)")
     ap.add_argument("--ablation", default=None,
                     help="ablation results folder whose finished runs are reused (default: results/ablation-<preset>)")
+    common.add_workers(ap)
     args = ap.parse_args(argv)
     if any(not 0 <= s <= 1 for s in args.shares):
         ap.error(f"--shares must each be in [0, 1], got {args.shares}")
@@ -70,20 +72,21 @@ def main(argv=None) -> dict:
     out = Path(args.out or common.ROOT / "results" / f"pattern_share-{args.preset}").absolute()
     abl = common.ablation_folder(ap, args.ablation, args.preset)
     results = run(cfg, args.methods, sorted(set(args.shares)), common.n_seeds(ap, args, cfg), out, abl, args.data,
-                  args.force, not args.quiet)
+                  args.force, not args.quiet, common.workers(ap, args))
     print(results["finding"])
     print(f"\nwrote {out}/results.json, pattern_share.md, pattern_share.csv, pattern_share.png")
     return results
 
 
-def run(cfg, methods, shares, n_seeds, out, ablation_dir=None, data_dir=None, force=False, progress=True) -> dict:
+def run(cfg, methods, shares, n_seeds, out, ablation_dir=None, data_dir=None, force=False, progress=True,
+        workers: int = 1) -> dict:
     out = Path(out).absolute()
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     nominal = float(cfg["data"]["pattern_moving"])
     timings: dict = {"data_s": {}, "train_s": {}, "eval_s": {}}
     reuse_from = None if force else ablation_dir
-    roots, backbones, per_share = {}, {}, {}
+    roots, backbones, cells = {}, {}, []
     for share in sorted(shares, key=lambda s: s != nominal):  # the preset's own data first: it holds the backbones
         cell_cfg = copy.deepcopy(cfg)
         cell_cfg["data"]["pattern_moving"] = float(share)
@@ -91,26 +94,25 @@ def run(cfg, methods, shares, n_seeds, out, ablation_dir=None, data_dir=None, fo
         roots[share] = common.ensure_data(cell_cfg, data_folder(cfg, data_dir, share), progress=progress)
         timings["data_s"][f"{share:g}"] = round(time.perf_counter() - t, 1)
         home = next(iter(roots.values()))  # pretraining reads no dataset: one backbone per kind for every share
-        rows = {}
         for m in methods:
             spec = registry.get(m)
             if spec.pretrained and spec.backbone not in backbones:
                 backbones[spec.backbone] = kernel.pretrained_backbone(cfg, spec.backbone, home, force, progress)
-            runs, per_seed = [], []
             seeds = kernel.seeds_for(cell_cfg, spec, n_seeds, roots[share], reuse_from)
-            for seed in seeds:
-                r = kernel.run(cell_cfg, spec, seed, roots[share], out / f"share{share:g}",
-                               backbone=lambda: backbones[spec.backbone],  # noqa: B023 (called in this pass)
-                               reuse_from=reuse_from, force=force,
-                               progress=progress)
-                timings["train_s"].setdefault(f"{m}@{share:g}", []).append(r.train_s)
-                timings["eval_s"].setdefault(f"{m}@{share:g}", []).append(r.eval_s)
-                per_seed.append(scores(r.result))
-                runs.append(str(r.dir))
-            rows[m] = {"seeds": seeds, "run_dirs": runs, "per_seed": per_seed,
-                       **{k: common.mean_std([s[k] for s in per_seed]) for k in METRICS}}
-        per_share[f"{share:g}"] = {"share": float(share), "data": str(roots[share]), "methods": rows}
-    timings["total_s"] = round(time.perf_counter() - t0, 1)
+            cells.append((share, m, [kernel.Job(cell_cfg, spec, seed, roots[share], out / f"share{share:g}",
+                                                backbone=functools.partial(backbones.get, spec.backbone),
+                                                reuse_from=reuse_from) for seed in seeds]))
+    done = iter(kernel.run_all([j for *_, js in cells for j in js], workers, force, progress, "pattern_share runs"))
+    per_share = {f"{share:g}": {"share": float(share), "data": str(roots[share]), "methods": {}} for share in roots}
+    for share, m, js in cells:
+        runs = [next(done) for _ in js]
+        timings["train_s"][f"{m}@{share:g}"] = [r.train_s for r in runs]
+        timings["eval_s"][f"{m}@{share:g}"] = [r.eval_s for r in runs]
+        per_seed = [scores(r.result) for r in runs]
+        per_share[f"{share:g}"]["methods"][m] = {
+            "seeds": [j.seed for j in js], "run_dirs": [str(r.dir) for r in runs], "per_seed": per_seed,
+            **{k: common.mean_std([s[k] for s in per_seed]) for k in METRICS}}
+    timings.update(train_workers=workers, total_s=round(time.perf_counter() - t0, 1))
     results = {"preset": cfg["preset"], "commit": common.git_commit(), "seeds": kernel.seeds(cfg, n_seeds),
                "timings": timings, "methods": list(methods), "shares": [float(s) for s in shares],
                "nominal_share": nominal, "per_share": per_share, "metrics": METRICS,

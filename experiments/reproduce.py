@@ -1,7 +1,7 @@
 """Bring every published result of a preset up to date from the current commit, in one command.
 
     python -m experiments.reproduce --preset {smoke,quick,full} [--only NAME ...] [--work DIR] [--publish DIR]
-                                    [--no-publish] [--data DIR] [--quiet]
+                                    [--no-publish] [--data DIR] [--quiet] [--workers N]
 
 Runs each experiment of experiments.catalog's pipeline in order (the ablation with 3 seeds, the loss sweep, the
 speed/accuracy chart, stability, downstream, both benchmarks; those marked on request, such as pattern_share, only
@@ -30,9 +30,11 @@ from experiments import catalog, common, mappings, status
 _NOT_PUBLISHED = ("runs", "checkpoints", "cache", "frames")
 
 
-def argv_for(exp: catalog.Experiment, preset: str, work: Path, quiet: bool, data: str | None = None) -> list[str]:
+def argv_for(exp: catalog.Experiment, preset: str, work: Path, quiet: bool, data: str | None = None,
+             workers: int | None = None) -> list[str]:
     """The command line of one experiment in the pipeline, with the common flags it takes."""
-    given = {"--quiet": [] if quiet else None, "--data": [str(data)] if data else None}
+    given = {"--quiet": [] if quiet else None, "--data": [str(data)] if data else None,
+             "--workers": [str(workers)] if workers else None}
     extra = [a for flag in exp.flags if given[flag] is not None for a in (flag, *given[flag])]
     return [*exp.args(preset, work), "--out", str(work / exp.name), *extra]
 
@@ -94,7 +96,12 @@ def main(argv=None) -> dict:
     ap.add_argument("--no-publish", action="store_true", help="run only; leave the published results as they are")
     ap.add_argument("--data", default=None, help="dataset folder (default: data/<preset>, made if missing)")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    ap.add_argument("--workers", type=int, default=None, metavar="N",
+                    help="training runs at once in the experiments that train (default: each one's, 2 on a CPU "
+                         "with 2 or more cores)")
     args = ap.parse_args(argv)
+    if args.workers is not None and args.workers < 1:
+        ap.error("--workers must be at least 1")
     chosen = catalog.one_command()
     if args.only:
         names = {e.name for e in catalog.pipeline()}
@@ -123,7 +130,7 @@ def main(argv=None) -> dict:
               "ran": [e.name for e in chosen], "load_start": list(os.getloadavg()), "experiments": {}}
     t0 = time.perf_counter()
     for exp in chosen:
-        line = argv_for(exp, args.preset, work, args.quiet, data)
+        line = argv_for(exp, args.preset, work, args.quiet, data, args.workers)
         print(f"[reproduce] {exp.name}: python -m {exp.module} {' '.join(line)}", file=sys.stderr, flush=True)
         fresh = not (work / exp.name).exists()  # else cached stages may be reused: its wall time is not its cost
         record["experiments"][exp.name] = {"argv": line, "wall_s": run_one(exp, line), "fresh": fresh,

@@ -73,6 +73,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--base", default="dino_rd", help="registry method the variants are made from")
     ap.add_argument("--ablation", default=None,
                     help="ablation results folder whose finished runs are reused (default: results/ablation-<preset>)")
+    common.add_workers(ap)
     args = ap.parse_args(argv)
     if any(b < 0 for b in args.betas) or args.alpha <= 0:
         ap.error("betas must be >= 0 and alpha > 0")
@@ -84,13 +85,14 @@ def main(argv=None) -> dict:
     out = Path(args.out or common.ROOT / "results" / f"sweep_loss-{args.preset}").absolute()
     abl = common.ablation_folder(ap, args.ablation, args.preset)
     results = run(cfg, base, sorted(set(args.betas)), args.alpha, seeds_n, out, abl, args.data, args.force,
-                  not args.quiet)
+                  not args.quiet, common.workers(ap, args))
     print(results["finding"])
     print(f"\nwrote {out}/results.json, sweep.md, sweep.csv, sweep.png")
     return results
 
 
-def run(cfg, base, betas, alpha, n_seeds, out, ablation_dir=None, data_dir=None, force=False, progress=True) -> dict:
+def run(cfg, base, betas, alpha, n_seeds, out, ablation_dir=None, data_dir=None, force=False, progress=True,
+        workers: int = 1) -> dict:
     out = Path(out).absolute()
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -104,14 +106,16 @@ def run(cfg, base, betas, alpha, n_seeds, out, ablation_dir=None, data_dir=None,
         timings[f"pretrain_{base.backbone}_s"] = round(time.perf_counter() - t, 1)
     seeds = kernel.seeds(cfg, n_seeds)
     reuse_from = None if force else ablation_dir  # --force retrains here rather than reusing the ablation's runs
+    # a beta the ablation trained (DINO R, DINO RD) also gets every further seed it has, at no cost
+    all_seeds = {beta: kernel.seeds_for(cfg, spec, n_seeds, data_root, reuse_from) for beta, spec in specs.items()}
+    jobs = [kernel.Job(cfg, specs[beta], seed, data_root, out, backbone=lambda: backbone, reuse_from=reuse_from)
+            for beta, beta_seeds in all_seeds.items() for seed in beta_seeds]
+    done = iter(kernel.run_all(jobs, workers, force, progress, "sweep runs"))
     per_beta = {}
     for beta, spec in specs.items():
         runs, per_seed, reused = [], [], []
-        # a beta the ablation trained (DINO R, DINO RD) also gets every further seed it has, at no cost
-        beta_seeds = kernel.seeds_for(cfg, spec, n_seeds, data_root, reuse_from)
-        for seed in beta_seeds:
-            r = kernel.run(cfg, spec, seed, data_root, out, backbone=lambda: backbone,
-                           reuse_from=reuse_from, force=force, progress=progress)
+        beta_seeds = all_seeds[beta]
+        for r in (next(done) for _ in beta_seeds):
             timings["train_s"].setdefault(f"{beta:g}", []).append(r.train_s)
             timings["eval_s"].setdefault(f"{beta:g}", []).append(r.eval_s)
             per_seed.append(scores(r.result))
@@ -123,7 +127,7 @@ def run(cfg, base, betas, alpha, n_seeds, out, ablation_dir=None, data_dir=None,
             "per_seed": per_seed,
             **{m: common.mean_std([s[m] for s in per_seed]) for m in METRICS},
         }
-    timings["total_s"] = round(time.perf_counter() - t0, 1)
+    timings.update(train_workers=workers, total_s=round(time.perf_counter() - t0, 1))
     results = {"preset": cfg["preset"], "commit": common.git_commit(), "seeds": seeds, "timings": timings,
                "base": base.name, "alpha": alpha, "betas": betas, "per_beta": per_beta, "metrics": METRICS,
                # the ablation's keys too, so `stability --ablation <this folder>` scores the sweep's models

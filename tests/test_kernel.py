@@ -58,3 +58,41 @@ def test_keys_the_config_gained_keep_older_runs_valid(tmp_path):
     assert kernel.train_key(before, spec, 0, tmp_path) == kernel.train_key(cfg, spec, 0, tmp_path)
     other = {**cfg, "data": {**cfg["data"], "train_sensor": "mini-2-gel1"}}
     assert kernel.train_key(other, spec, 0, tmp_path) != kernel.train_key(cfg, spec, 0, tmp_path)
+
+
+def test_run_all_pools_pairs_of_runs_that_need_training(ablation_run, monkeypatch):
+    """With 2 workers, the runs left to train go to the pool in pairs (the odd one trains here on every core),
+    a reusable or finished run never does, and a pooled run reports its worker's seconds."""
+    abl, cfg, spec, data_root, stage = ablation_run
+    stage.finish()  # dino_rd seed 0 is reusable from the ablation
+    out = abl.parent / "sweep"
+    jobs = [kernel.Job(cfg, spec, seed, data_root, out, reuse_from=abl) for seed in range(4)]
+    pooled_calls = []
+
+    def pooled(js, workers, force, progress, desc):
+        pooled_calls.append([j.seed for j in js])
+        for j in js:  # what a worker leaves: the run trained
+            common.Stage(j.folder(), kernel.train_key(cfg, spec, j.seed, data_root)).finish()
+        return {j.folder(): (100.0 + j.seed, 1.0) for j in js}
+
+    trained_here = []
+
+    def train(c, s, seed, d, folder, *a, **k):  # as kernel.train: a finished stage is left as it is
+        if not kernel.trained(folder, c, s, seed, d):
+            trained_here.append(seed)
+            common.Stage(folder, kernel.train_key(c, s, seed, d)).finish()
+
+    monkeypatch.setattr(kernel, "_train_pooled", pooled)
+    monkeypatch.setattr(kernel, "train", train)
+    monkeypatch.setattr(kernel, "evaluate", lambda c, folder, d, force=False: {"folder": folder})
+    runs = kernel.run_all(jobs, workers=2, progress=False)
+    assert pooled_calls == [[1, 2]] and trained_here == [3]
+    assert [r.reused for r in runs] == [True, False, False, False]
+    assert [r.train_s for r in runs[1:3]] == [101.0, 102.0] and [r.eval_s for r in runs[1:3]] == [1.0, 1.0]
+    assert [r.dir for r in runs[1:]] == [j.folder() for j in jobs[1:]]
+
+    pooled_calls.clear()
+    kernel.run_all(jobs, workers=2, progress=False)  # all finished now: nothing to pool, nothing trained
+    assert pooled_calls == [] and trained_here == [3]
+    kernel.run_all(jobs[1:], workers=1, progress=False)  # one worker: never a pool
+    assert pooled_calls == []

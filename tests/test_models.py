@@ -213,3 +213,19 @@ def test_resnet_conv_equals_the_library_convolution(side, stride, kernel):
     np.testing.assert_allclose(ours(x, w), lib(x, w), rtol=1e-5)
     for a, b in zip(jax.grad(ours, (0, 1))(x, w), jax.grad(lib, (0, 1))(x, w)):
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_resnet_conv_leaves_other_layouts_to_the_library():
+    # the matrix product is written for NHWC / HWIO (what flax's Conv passes); any other layout, or none
+    # (lax's NCHW default), takes lax's convolution and gives its result
+    from jax import lax
+
+    from ffjax.models import resnet
+
+    x, w = jnp.arange(2 * 5 * 2 * 2.0).reshape(2, 5, 2, 2), jnp.ones((6, 5, 3, 3))
+    pad = ((1, 1), (1, 1))
+    for dims in (None, ("NCHW", "OIHW", "NCHW")):
+        jaxpr = str(jax.make_jaxpr(lambda x, w, d=dims: resnet._conv_op(x, w, (1, 1), pad, dimension_numbers=d))(x, w))
+        assert "conv_general_dilated" in jaxpr and "dot_general" not in jaxpr
+        np.testing.assert_array_equal(resnet._conv_op(x, w, (1, 1), pad, dimension_numbers=dims),
+                                      lax.conv_general_dilated(x, w, (1, 1), pad, dimension_numbers=dims))

@@ -35,7 +35,9 @@ def _conv_op(lhs, rhs, window_strides, padding, lhs_dilation=None, rhs_dilation=
                                         dimension_numbers, feature_group_count, precision=precision)
 
     dilated = any(d is not None and tuple(d) != (1, 1) for d in (lhs_dilation, rhs_dilation))
-    if dilated or feature_group_count != 1 or isinstance(padding, str) and padding != "VALID":
+    nhwc = lax.conv_dimension_numbers(lhs.shape, rhs.shape, ("NHWC", "HWIO", "NHWC"))
+    layout = lax.conv_dimension_numbers(lhs.shape, rhs.shape, dimension_numbers)  # None: lax's NCHW default
+    if dilated or feature_group_count != 1 or layout != nhwc or isinstance(padding, str) and padding != "VALID":
         return library()
     kh, kw = rhs.shape[:2]
     pads = ((0, 0), (0, 0)) if padding == "VALID" else tuple(tuple(p) for p in padding)
