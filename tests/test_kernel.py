@@ -96,3 +96,12 @@ def test_run_all_pools_pairs_of_runs_that_need_training(ablation_run, monkeypatc
     assert pooled_calls == [] and trained_here == [3]
     kernel.run_all(jobs[1:], workers=1, progress=False)  # one worker: never a pool
     assert pooled_calls == []
+
+
+def test_runs_of_another_size_pool_only_in_whole_groups(ablation_run):
+    """pareto's cells: one run of each size is never paired (one would train alone on one core at the end)."""
+    abl, cfg, spec, data_root, _ = ablation_run
+    jobs = [kernel.Job(cfg, spec, seed, data_root, abl, size=size)
+            for size, seed in (("vit-xs", 0), ("vit-m", 0), (None, 0), (None, 1), (None, 2))]
+    assert [(j.size, j.seed) for j in kernel._poolable(jobs, 2)] == [(None, 0), (None, 1)]
+    assert kernel._poolable(jobs[:2], 2) == []
