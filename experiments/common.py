@@ -84,13 +84,19 @@ def add_workers(ap) -> None:
                          "a CPU with 2 or more cores, 1 on a GPU; 1: one at a time on every core)")
 
 
+def default_workers() -> int:
+    """How many runs train at once by default (experiments.kernel.run_all): two on a CPU with at least two cores
+    (each on its half), one on an accelerator (one device; runs there would only queue)."""
+    import jax
+
+    return min(2, len(os.sched_getaffinity(0))) if jax.default_backend() == "cpu" else 1
+
+
 def workers(ap, args) -> int:
-    """--workers, else experiments.kernel.default_workers()."""
+    """--workers, else default_workers()."""
     if args.workers is not None and args.workers < 1:
         ap.error("--workers must be at least 1")
-    from experiments import kernel
-
-    return args.workers or kernel.default_workers()
+    return args.workers or default_workers()
 
 
 def config_from_args(ap, args) -> dict:

@@ -13,7 +13,7 @@ calibration config. A folder of another experiment (`reuse_from`, an ablation's)
 its stage holds the same key and is done.
 
 Several runs: `run_all(jobs, workers=2)` trains (and evaluates) the jobs that need training two at a time, each
-in its own process pinned to its half of the cores (default_workers: on a CPU). On the 2-core CPU a quick
+in its own process pinned to its half of the cores (common.default_workers: on a CPU). On the 2-core CPU a quick
 train step takes 159 ms on one core against 94 on two (DINO RD; ResNet RD 139 against 84), so two runs side
 by side finish 1.2x sooner. Their recorded train seconds are then one core's, beside another run.
 """
@@ -238,14 +238,6 @@ class Job:
         if reusable(self.reuse_from, self.cfg, self.spec, self.seed, self.data_root) is not None:
             return False
         return force or not trained(self.folder(), self.cfg, self.spec, self.seed, self.data_root)
-
-
-def default_workers() -> int:
-    """How many runs train at once by default: two on a CPU with at least two cores (each on its half), one
-    on an accelerator (one device; runs there would only queue)."""
-    import jax
-
-    return min(2, len(os.sched_getaffinity(0))) if jax.default_backend() == "cpu" else 1
 
 
 def run_all(jobs: list[Job], workers: int = 1, force: bool = False, progress: bool = True,

@@ -51,8 +51,8 @@ def test_the_smoke_pipeline_end_to_end(tmp_path, monkeypatch):
     # nothing trained twice: the sweep trains only the betas between the ablation's, the chart only the other
     # sizes; their reused cells point into the ablation's runs
     ablation_runs = _done_runs(work / "ablation")
-    # trained kernel.default_workers() at a time (two on a 2-core CPU: the pool of pinned worker processes)
-    assert common.read_json(work / "ablation" / "results.json")["timings"]["train_workers"] == kernel.default_workers()
+    # trained common.default_workers() at a time (two on a 2-core CPU: the pool of pinned worker processes)
+    assert common.read_json(work / "ablation" / "results.json")["timings"]["train_workers"] == common.default_workers()
     assert ablation_runs and all(p.is_relative_to(work / "ablation" / "runs") for p in ablation_runs)
     sweep = json.loads((published / "sweep_loss" / "results.json").read_text())
     for beta in ("0", "10"):
