@@ -237,7 +237,8 @@ def plot(res: dict, path: Path) -> Path:
     colour = {b: plt.get_cmap("tab10")(i) for i, b in enumerate(BODIES)}  # distinct hues, none too pale
     for b in BODIES:
         rows = [r for r in res["physics"] if r["body"] == b]
-        ax.plot([r["fz"] for r in rows], [r["crb_rel"] for r in rows], "o-", color=colour[b], label=b, ms=4)
+        ax.plot([r["fz"] for r in rows], [r["crb_rel"] for r in rows], "o-", color=colour[b], ms=4,
+                label=b.replace("_", " "))
     ax.axhline(0.1, color="0.5", ls=":", lw=1, label="10% of Fz")
     ax.set(xscale="log", yscale="log", xlabel="Fz (N)", ylabel="Cramer-Rao bound on Fz / Fz",
            title="what one frame can tell (noise-limited)")
@@ -251,7 +252,7 @@ def plot(res: dict, path: Path) -> Path:
         for b in BODIES:
             rows = [r for r in m["rows"] if r["body"] == b]
             ax.errorbar([r["fz"] for r in rows], [r["bias_n"] for r in rows], yerr=[r["std_n"] for r in rows],
-                        fmt="o-", color=colour[b], ms=4, capsize=2, label=b)
+                        fmt="o-", color=colour[b], ms=4, capsize=2, label=b.replace("_", " "))
             lows += [r["bias_n"] - r["std_n"] for r in rows]
             highs += [r["bias_n"] + r["std_n"] for r in rows]
         ax.axhline(0, color="0.5", lw=1)
@@ -275,13 +276,13 @@ def _seating_panel(ax, training: dict, colour: dict) -> None:
     for i, (s, v) in enumerate(training.items()):
         ratio = [np.nan if b["median_ratio"] is None else b["median_ratio"] for b in v["seating"]]
         grey = str(round(0.2 + 0.5 * others.index(s) / max(len(others) - 1, 1), 2)) if s in others else None
-        ax.plot(mid, ratio, "os^vD<>ph*"[i % 10] + "-", color=colour.get(s, grey), ms=4, label=s,
+        ax.plot(mid, ratio, "os^vD<>ph*"[i % 10] + "-", color=colour.get(s, grey), ms=4, label=s.replace("_", " "),
                 lw=2 if s in colour else 1)
     ax.axhline(SEATED, color="0.5", ls=":", lw=1, label=f"seated ({SEATED:.0%})")
     ax.set(xlabel="Fz band centre (N)", ylabel="contact / untilted contact at the same Fz (median)",
-           title="training presses: how seated", ylim=(0, None))
+           title="training presses: how seated", ylim=(0, 1.55))  # headroom: the legend sits above the lines
     ax.set_xticks(mid, [f"{lo:g}-{hi:g}" for lo, hi in FZ_BANDS_N])
-    ax.legend(fontsize=6, ncol=2)
+    ax.legend(fontsize=6, ncol=4, loc="upper center")
 
 
 def main(argv=None) -> dict:
