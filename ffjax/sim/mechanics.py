@@ -335,10 +335,38 @@ def _approach_at_ends(f_mid, d_mid, fz: float, d_end: float, steps: int) -> np.n
 
 
 PATH_STEPS = 4  # steps of the oblique press's path: its tangential force within ~2% of 16 steps (tests)
+QUADRATURES = ("midpoint", "power")
+PATH_QUADRATURE = "midpoint"  # how a step's stiffness stands for it (`oblique_batch`)
+
+
+def _power_weights(mids, stiff, ends) -> np.ndarray:
+    """Per step, the path's stiffness integrated over the step's approach [ends[j], ends[j+1]] over the midpoint
+    rule's stiff[j] x its length: stiffness taken as a power law of the approach between the steps' middle
+    approaches `mids` (log-log linear; below the first and beyond the last, the nearest segment's law, which
+    reaches 0 at no approach). Exact for any power law K ~ delta^q (a sphere on a half-space: q = 1/2, where the
+    midpoint rule's first step, growing from a point, is the one it gets most wrong); 1 where it cannot tell (one
+    step, or stiffnesses that do not grow)."""
+    m, k = np.asarray(mids, float), np.asarray(stiff, float)
+    n = len(m)
+    if n < 2 or np.any(np.diff(m) <= 0) or np.any(k <= 0):
+        return np.ones(n)
+    q = np.clip(np.diff(np.log(k)) / np.diff(np.log(m)), 0.0, 3.0)  # a stiffness that falls is held constant
+
+    def integral(x0: float, x1: float) -> float:  # of the piecewise law over [x0, x1]
+        total, cuts = 0.0, [-np.inf, *m[1:-1], np.inf]
+        for j in range(n - 1):
+            a, b = max(x0, cuts[j]), min(x1, cuts[j + 1])
+            if b > a:  # K = k[j] (x / m[j])^q[j]
+                total += k[j] * (b ** (q[j] + 1) - a ** (q[j] + 1)) / ((q[j] + 1) * m[j] ** q[j])
+        return total
+
+    e = np.asarray(ends, float)
+    return np.array([integral(e[j], e[j + 1]) / (k[j] * (e[j + 1] - e[j])) for j in range(n)])
 
 
 def oblique_batch(hs, mm_per_px: float, shear_mpa: float, thickness: float, friction: float, fzs, slopes,
-                  steps: int = PATH_STEPS, reference: bool = False) -> tuple[list, list]:
+                  steps: int = PATH_STEPS, reference: bool = False,
+                  quadrature: str = PATH_QUADRATURE) -> tuple[list, list]:
     """The paper's press for B bodies (hs (B, H, W) heights on the pad grid): the tool moves along its tilted axis
     until the gel carries Fz, so per unit of approach the body also moves sideways by slope = (tan tilt_x,
     tan tilt_y), and every point of gel it touches stays held from its first touch on (stick, nested growing
@@ -347,9 +375,14 @@ def oblique_batch(hs, mm_per_px: float, shear_mpa: float, thickness: float, fric
     force and the approach at its ends interpolated in F^(2/3) (exact for a sphere on a half-space, for which
     Ft / Fz = (2/3) tan a). Each increment's stick solve is loaded along the sideways motion and scaled to its
     displacement along it (the body's small motion across it on an anisotropic contact is left free). Capped by
-    mu Fz (slip). Returns (normals, shears): per press its final Normal (or the ValueError it raised) and Shear."""
+    mu Fz (slip). quadrature: how each increment's stiffness stands for its step, "midpoint" (the contact at the
+    middle force) or "power" (`_power_weights`: the stiffness a power law of the approach through the steps'
+    middles, exact for a sphere; the same solves). Returns (normals, shears): per press its final Normal (or the
+    ValueError it raised) and Shear."""
     if not (isinstance(steps, (int, np.integer)) and steps >= 1):
         raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
+    if quadrature not in QUADRATURES:
+        raise ValueError(f"quadrature must be one of {QUADRATURES}, got {quadrature!r}")
     hs = np.asarray(hs, np.float64)
     slopes = np.asarray(slopes, np.float64).reshape(len(hs), 2)
     normals = solve_normal_batch(hs, mm_per_px, shear_mpa, thickness, fzs, reference)
@@ -371,22 +404,33 @@ def oblique_batch(hs, mm_per_px: float, shear_mpa: float, thickness: float, fric
                                         reference, np.stack(inside))
         inside = [n.contact if isinstance(n, Normal) and n.contact.any() else c for n, c in zip(by_step[j], inside)]
     mids = [by_step[j][k] for k in range(len(todo)) for j in range(steps)]
-    loads, contacts, depths = [], [], []
+    loads, contacts, depths, span = [], [], [], {}
     for k, i in enumerate(todo):
         fz, mid = float(fzs[i]), mids[k * steps:(k + 1) * steps]
-        ends = _approach_at_ends(fz * frac, np.array([n.delta for n in mid], float), fz, normals[i].delta, steps)
+        approach = np.array([n.delta for n in mid], float)
+        ends = _approach_at_ends(fz * frac, approach, fz, normals[i].delta, steps)
         direction = slopes[i] / np.hypot(*slopes[i])
-        for n, d_delta in zip(mid, np.diff(ends)):
+        for j, (n, d_delta) in enumerate(zip(mid, np.diff(ends))):
             if n.contact.any() and d_delta > 0:
                 loads.append((k, direction, np.hypot(*slopes[i]) * d_delta))
                 contacts.append(n.contact)
                 depths.append(hold_depth(n, thickness))
+                span.setdefault(k, []).append((approach[j], ends[j], ends[j + 1]))
     fields, s = _stick(np.stack(contacts), np.stack([d for _, d, _ in loads]), np.asarray(depths), mm_per_px,
                        shear_mpa, thickness, reference)
+    weight = np.ones(len(loads))
+    if quadrature == "power":
+        along = np.array([float(direction @ disp) for (_, direction, _), disp in zip(loads, s)])
+        for k, steps_k in span.items():
+            at = [j for j, load in enumerate(loads) if load[0] == k]
+            m, lo, hi = (np.array(v) for v in zip(*steps_k))
+            if np.all(hi[:-1] == lo[1:]):  # a whole path: no step left out (one without contact or motion)
+                weight[at] = _power_weights(m, 1.0 / along[at], np.append(lo, hi[-1]))
     total = {k: [np.zeros(2), np.zeros(2), 0.0] for k in range(len(todo))}
-    for (k, direction, move), field, disp in zip(loads, fields, s):
+    for (k, direction, move), field, disp, w in zip(loads, fields, s, weight):
         scale = move / float(direction @ disp)  # the unit load's displacement along the motion, to the move
-        total[k][0] = total[k][0] + scale * direction
+        total[k][0] = total[k][0] + w * scale * direction  # the force is the stiffness's integral; the gel held
+        # moves with the body, so the displacements are the move's whatever the quadrature
         total[k][1] = total[k][1] + scale * disp
         total[k][2] = total[k][2] + scale * field
     for k, i in enumerate(todo):

@@ -91,21 +91,21 @@ def _check(sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed=0):
 def press(shape: Shape | str, sensor: Sensor | str, force=(0.0, 0.0, 1.0), x_mm: float = 0.0,
           y_mm: float = 0.0, yaw_deg: float = 0.0, tilt_deg=(0.0, 0.0), seed: int = 0,
           size: tuple[int, int] | None = None, noise: bool = True, path: str = "shear",
-          steps: int = mechanics.PATH_STEPS) -> Sample:
+          steps: int = mechanics.PATH_STEPS, quadrature: str = mechanics.PATH_QUADRATURE) -> Sample:
     """Press `shape` into `sensor` with the requested force (N) at a pose; returns the frame and labels.
 
     The penetration is solved so that the gel carries Fz; shear beyond mu * Fz slips and is capped
     (meta["slip"]). path="oblique": the paper's press along the tilted tool axis, its shear from the path
-    (request (0, 0, Fz), in `steps` increments; see `press_many`). Camera noise comes from `seed` (independent of
-    the background frame's fixed noise); noise=False renders a noiseless frame (then zero force gives exactly
-    sensor.background(size, False)).
+    (request (0, 0, Fz), in `steps` increments with a `quadrature`; see `press_many`). Camera noise comes from
+    `seed` (independent of the background frame's fixed noise); noise=False renders a noiseless frame (then zero
+    force gives exactly sensor.background(size, False)).
     The batch of one of `press_batch`.
     """
     shape = get_shape(shape) if isinstance(shape, str) else shape
     sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
     size = render_size_of(sensor, size)
     s = press_many([shape], sensor, [force], [x_mm], [y_mm], [yaw_deg], [tilt_deg], [seed], size, noise,
-                   path=path, steps=steps)[0]
+                   path=path, steps=steps, quadrature=quadrature)[0]
     if isinstance(s, ValueError):
         raise s
     s.background = optics.background(sensor, size, noise)
@@ -141,7 +141,7 @@ PATHS = ("shear", "oblique")
 
 def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds, size: tuple[int, int] | None = None,
                noise: bool = True, reference: bool = False, path: str = "shear",
-               steps: int = mechanics.PATH_STEPS) -> list:
+               steps: int = mechanics.PATH_STEPS, quadrature: str = mechanics.PATH_QUADRATURE) -> list:
     """One Sample per press (shapes, by name or Shape, and poses may all differ; one sensor and render size), or
     the ValueError that press refused: the layer solves of all of them run as one batch
     (`mechanics.solve_normal_batch`, `shear_batch`); reference=True runs the numpy reference solves instead (the
@@ -149,10 +149,11 @@ def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds,
 
     path "shear": pressed to Fz, then the requested (Fx, Fy) applied in stick. path "oblique": the paper's
     press, the tool moved along its tilted axis until the gel carries Fz, the shear coming from the path
-    (`mechanics.oblique_batch` in `steps` increments; request (0, 0, Fz), the tilt sets the push)."""
+    (`mechanics.oblique_batch` in `steps` increments, each step's stiffness taken by its `quadrature`; request
+    (0, 0, Fz), the tilt sets the push)."""
     sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
     return press_many_seen(shapes, (sensor,), forces, xs, ys, yaws, tilts, seeds, size, noise, reference, path,
-                           steps)[0]
+                           steps, quadrature)[0]
 
 
 def mechanics_key(sensor: Sensor) -> tuple:
@@ -165,7 +166,8 @@ def mechanics_key(sensor: Sensor) -> tuple:
 
 def press_many_seen(shapes, sensors, forces, xs, ys, yaws, tilts, seeds, size: tuple[int, int] | None = None,
                     noise: bool = True, reference: bool = False, path: str = "shear",
-                    steps: int = mechanics.PATH_STEPS) -> list[list]:
+                    steps: int = mechanics.PATH_STEPS,
+                    quadrature: str = mechanics.PATH_QUADRATURE) -> list[list]:
     """`press_many` solved once and rendered as each of `sensors` sees it: one list of Samples (or ValueErrors) per
     sensor, each the very list press_many would give for that sensor. The sensors must share `mechanics_key` (a
     robustness sweep's lighting, camera noise or pigment levels of one gel); the first one's solve serves all."""
@@ -207,7 +209,7 @@ def press_many_seen(shapes, sensors, forces, xs, ys, yaws, tilts, seeds, size: t
     if path == "oblique":
         slopes = [np.tan(np.radians(r.pose[3])) for r in reqs.values()]
         normals, by_path = mechanics.oblique_batch(heights, mpp_s, gel.shear_mpa, gel.thickness_mm, gel.friction,
-                                                   fzs, slopes, steps, reference)
+                                                   fzs, slopes, steps, reference, quadrature)
     else:
         normals = mechanics.solve_normal_batch(heights, mpp_s, gel.shear_mpa, gel.thickness_mm, fzs, reference)
     ok = []
@@ -284,14 +286,15 @@ def _carried(depth: np.ndarray, disp_px: np.ndarray, body_px: np.ndarray) -> np.
 
 def press_batch(shape, sensor: Sensor | str, forces, x_mm=None, y_mm=None, yaw_deg=None,
                 tilt_deg=None, seeds=None, size=None, noise: bool = True, reference: bool = False,
-                path: str = "shear", steps: int = mechanics.PATH_STEPS) -> dict:
+                path: str = "shear", steps: int = mechanics.PATH_STEPS,
+                quadrature: str = mechanics.PATH_QUADRATURE) -> dict:
     """N presses on one sensor, their layer solves batched (the dataset path; shares every cached table).
 
     shape: one shape (name or Shape) for all, or a sequence of N. forces (N, 3); poses are (N,) arrays (tilt
     (N, 2)) or None for centred/untilted; seeds (N,) or None (= 0..N-1). Returns {"image" (N,H,W,3) uint8,
     "depth" (N,H,W) float32, "force" (N,3) float32, "background" (H,W,3) uint8, "meta": list of dicts}; the first
-    press the simulator refuses raises its ValueError. reference=True: the numpy reference solves; path, steps: see
-    `press_many`.
+    press the simulator refuses raises its ValueError. reference=True: the numpy reference solves; path, steps,
+    quadrature: see `press_many`.
     """
     shape = get_shape(shape) if isinstance(shape, str) else shape
     if not isinstance(shape, Shape):
@@ -314,7 +317,7 @@ def press_batch(shape, sensor: Sensor | str, forces, x_mm=None, y_mm=None, yaw_d
            "force": np.empty((n, 3), np.float32), "background": optics.background(sensor, size, noise), "meta": []}
     shapes = [shape] * n if isinstance(shape, Shape) else shape
     samples = press_many(shapes, sensor, forces, xs, ys, yaws, tilts, [int(v) for v in seeds], size, noise, reference,
-                         path, steps)
+                         path, steps, quadrature)
     for i, s in enumerate(samples):
         if isinstance(s, ValueError):
             raise s
