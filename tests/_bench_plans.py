@@ -14,10 +14,11 @@ TINY = {
     "workers": (0,), "scaling": None, "dp": None, "bf16_acc": None, "profile": False,
     "fast": ("recompile", "donation"), "loop": {"train": 16, "val": 8, "epochs": 2, "val_every": (1, 2)},
 }
-# the simulator's part (`--only sim`): both paths at one size, agreement on two sensors, one batch's memory
+# the simulator's part (`--only sim`): both paths at one size, agreement on two sensors, the path's steps, one
+# batch's memory
 TINY_SIM = {"sizes": {"24x32": (24, 32)}, "batches": (1, 4), "n": 4, "reference_n": 2, "agreement_size": (24, 32),
             "agreement_per_shape": 1, "agreement_sensors": ("mini-1-gel1", "digit"), "memory": (4, (24, 32)),
-            "dataset": None}
+            "dataset": None, "path": {"n": 4, "steps": (1, 2), "reference": 4}}
 # what the smoke pipeline's `experiments.bench --smoke` runs: TINY with a small scaling sweep (the pipeline skips
 # no section) and the simulator's part, with the smoke dataset's time read from the one the ablation made
 PIPELINE = {**TINY, "name": "smoke", "scaling": {"base": "smoke", "batch": (4,), "size": (16,), "model": ((16, 1, 2),)},
@@ -93,7 +94,16 @@ def check_sim(out, res: dict) -> None:
     assert set(ag) == {"mini-1-gel1", "digit"}
     for v in ag.values():  # the same physics on both paths (the bench's own measure, loose: a tiny grid)
         assert v["presses"] > 0 and v["refused_by_one"] == 0 and v["force_rel_max"] < 0.01
+    pc = {(r["steps"], r["quadrature"]): r for r in res["sim_speed"]["path"]["rows"]}
+    assert set(pc) == {(n, q) for n in (1, 2) for q in ("midpoint", "power")} and res["sim_speed"]["path"]["sheared"]
+    one, two = (pc[1, "midpoint"], pc[1, "power"]), (pc[2, "midpoint"], pc[2, "power"])
+    assert one[0]["ft_rel_median"] == one[1]["ft_rel_median"]  # one step: nothing to fit, the midpoint rule
+    assert two[1]["ft_rel_median"] < two[0]["ft_rel_median"]  # measured 0.9% against 9.4% on these presses
+    assert all(a["depth_um_max"] == b["depth_um_max"] for a, b in (one, two))  # the quadrature weighs only forces
+    assert all(r["ms_a_press"] > 0 for r in pc.values())
     assert res["sim_speed"]["memory"]["peak_rss_mib"] > 0
     text = (out / "report.md").read_text()
     assert "batched layer solves against the numpy reference" in text and "Agreement on the same presses" in text
     assert (out / "sim_speed.png").stat().st_size > 10_000 and "![sim_speed](sim_speed.png)" in text
+    assert "The oblique path's steps (4 presses" in text and "midpoint (default)" not in text  # the default: 4 steps
+    assert (out / "path_convergence.png").stat().st_size > 10_000 and "(path_convergence.png)" in text

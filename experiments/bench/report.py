@@ -336,6 +336,23 @@ def sim_tables(ss: dict | None) -> str:
                            _f(v["iterations_p90"]), _f(v["fft_floor_ms_a_press"], 2)]
                           for k, v in fl["solves"].items()]
                          + [["both", "", "", "", "", _f(fl["fft_floor_ms_a_press"], 2)]])]
+    pc = ss.get("path")
+    if pc:
+        d = pc["default"]
+        pct = lambda r, k: _f(100 * r[k], 2) if k in r else "-"  # noqa: E731
+        out += [f"\nThe oblique path's steps ({pc['presses']} presses at {'x'.join(map(str, pc['render_size']))} on "
+                f"{pc['sensor']}, {pc['sheared']} of them sheared by more than {pc['sheared_above_n']} N): each "
+                f"variant's distance to the same presses pressed in {pc['reference_steps']} steps with the power-law "
+                "quadrature, the path converged (`ffjax.sim.mechanics.oblique_batch`): the tangential force's "
+                "relative to its size, the depth's in um, the share of pixels more than 1 count apart; and its time a "
+                f"press in one call. The default is {d['steps']} steps, {d['quadrature']}.\n",
+                md_table(["steps", "quadrature", "ms a press", "shear off, median %", "p90 %", "max %",
+                          "depth off, median um", "max um", "pixels > 1 count %"],
+                         [[r["steps"], r["quadrature"] + (" (default)" if (r["steps"], r["quadrature"]) ==
+                                                          (d["steps"], d["quadrature"]) else ""),
+                           _f(r["ms_a_press"]), pct(r, "ft_rel_median"), pct(r, "ft_rel_p90"), pct(r, "ft_rel_max"),
+                           _f(r["depth_um_median"]), _f(r["depth_um_max"]), _f(100 * r["pixels_over_1_count"], 2)]
+                          for r in pc["rows"]])]
     mem = ss.get("memory")
     if mem:
         device = (f"; the device's peak {_f(mem['device_peak_mib'])} MiB (jax's allocator)"
@@ -382,6 +399,8 @@ def only_report(res: dict) -> str:
 def plots(res: dict, out: Path) -> list[str]:
     """One PNG per scaling axis: ms/step and compiled peak memory; the simulator's rates (sim_plot)."""
     files = [sim_plot(res, out)] if res.get("sim_speed") else []
+    if (res.get("sim_speed") or {}).get("path"):
+        files.append(path_plot(res, out))
     sc = res.get("scaling")
     if not sc:
         return files
@@ -463,6 +482,62 @@ def sim_plot(res: dict, out: Path) -> str:
              fontsize=7, color="0.35")
     fig.tight_layout()
     path = Path(out) / "sim_speed.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return str(path)
+
+
+def path_plot(res: dict, out: Path) -> str:
+    """path_convergence.png: the oblique path's distance to its converged self against its time a press, per
+    quadrature, each point a number of steps: the tangential force (median, and p90 dashed) and the depth (max)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pc = res["sim_speed"]["path"]
+    default = (pc["default"]["steps"], pc["default"]["quadrature"])
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(9.0, 3.8))
+    quadratures = sorted({r["quadrature"] for r in pc["rows"]})
+    by_q = {q: sorted((r for r in pc["rows"] if r["quadrature"] == q), key=lambda r: r["steps"]) for q in quadratures}
+    for i, (q, rows) in enumerate(by_q.items()):
+        ms = [r["ms_a_press"] for r in rows]
+        if all("ft_rel_median" in r for r in rows):
+            ax.plot(ms, [100 * r["ft_rel_median"] for r in rows], "o-", color=f"C{i}", label=f"{q}, median")
+            ax.plot(ms, [100 * r["ft_rel_p90"] for r in rows], "v--", color=f"C{i}", mfc="white", label=f"{q}, p90")
+        for r in rows:
+            mark = " (default)" if (r["steps"], r["quadrature"]) == default else ""
+            if "ft_rel_median" in r:
+                ax.annotate(f"{r['steps']}{mark}", (r["ms_a_press"], 100 * r["ft_rel_median"]), fontsize=7,
+                            xytext=(4, 4 if q == "midpoint" else -10), textcoords="offset points", color=f"C{i}")
+    # the quadrature weighs the force only (the held gel moves as the tool does), so the depths are one curve
+    # unless a run says otherwise
+    same = len({tuple(r["depth_um_max"] for r in rows) for rows in by_q.values()}) == 1
+    for i, (q, rows) in enumerate(by_q.items()):
+        if same and i:
+            break
+        name = "either quadrature" if same else q
+        colour = "0.3" if same else f"C{i}"
+        ms = [r["ms_a_press"] for r in rows]
+        ax2.plot(ms, [r["depth_um_max"] for r in rows], "o-", color=colour, label=f"{name}, max over presses")
+        ax2.plot(ms, [r["depth_um_median"] for r in rows], "v--", color=colour, mfc="white", label=f"{name}, median")
+        for r in rows:
+            ax2.annotate(f"{r['steps']}", (r["ms_a_press"], r["depth_um_max"]), fontsize=7, xytext=(4, 4),
+                         textcoords="offset points", color=colour)
+    ax.set_ylabel("shear |Ft| off the converged path (% of |Ft|)")
+    ax2.set_ylabel("depth off the converged path (um)")
+    for a in (ax, ax2):
+        a.set_xlabel("ms a press (one call; labels: path steps)")
+        a.set_ylim(bottom=0)
+        a.grid(alpha=0.3)
+        a.legend(fontsize=7, frameon=False)
+    size = "x".join(map(str, pc["render_size"]))
+    fig.suptitle(f"Oblique path against itself in {pc['reference_steps']} power-law steps: {pc['presses']} presses "
+                 f"at {size} on {pc['sensor']} ({pc['sheared']} sheared)", fontsize=9)
+    fig.text(0.995, 0.005, f"ffjax bench · commit {str(res.get('commit', '?'))[:7]}", ha="right", va="bottom",
+             fontsize=7, color="0.35")
+    fig.tight_layout()
+    path = Path(out) / "path_convergence.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return str(path)

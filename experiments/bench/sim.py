@@ -2,7 +2,8 @@
 (ffjax.sim.batched, what the simulator runs) against the numpy reference (the path before them, kept for this
 and for the agreement checks), in one run, per render size, batch size and number of threads, pressed as the
 dataset presses (the oblique press in data.path_steps increments: path_steps + 1 normal and path_steps stick
-solves each); their agreement on every indenter, unseen object and sensor; the peak memory of one batch; and a
+solves each); their agreement on every indenter, unseen object and sensor; the oblique path's distance to itself
+converged in its steps, per quadrature, against its time; the peak memory of one batch; and a
 preset's whole dataset, end to end (read from a made dataset's manifest where the call that made it is that
 measurement: `--data`, as the pipeline gives it)."""
 
@@ -181,6 +182,48 @@ def agreement(size, per_shape: int, sensors=None) -> dict:
     return out
 
 
+SHEARED_N = 0.05  # presses sheared by less are left out of the path's relative force error (noise over a tiny force)
+
+
+def path_convergence(n: int, steps, reference: int, size, sensor: str = "mini-1-gel1") -> dict:
+    """The oblique path against itself converged: n presses (mixed indenters, the dataset's ranges) pressed in
+    `reference` steps with the power-law quadrature, then in each of `steps` with each of mechanics.QUADRATURES.
+    Per variant: the tangential force's distance to the converged one relative to its size (median, p90, max over
+    the presses sheared by more than SHEARED_N), the depth's (um; median and max over presses), the share of pixels
+    more than 1 count apart, and its time a press in one call (the power variant after an untimed call; the
+    midpoint one runs the very same solves, compiled by then). Where the default (STEPS with
+    mechanics.PATH_QUADRATURE) stands between fewer steps and the converged path."""
+    p = presses(n, seed=5)
+
+    def press(k: int, quadrature: str) -> tuple[dict, float]:
+        t0 = time.perf_counter()
+        r = sim.press_batch(p["shape"], sensor, p["forces"], p["x_mm"], p["y_mm"], p["yaw_deg"], p["tilt_deg"],
+                            p["seeds"], tuple(size), path="oblique", steps=k, quadrature=quadrature)
+        return r, time.perf_counter() - t0
+
+    ref, _ = press(reference, "power")
+    ft = np.hypot(*ref["force"][:, :2].T)
+    sheared = ft > SHEARED_N
+    rows = []
+    for k in steps:
+        press(k, "power")  # untimed: compiles what the reference's windows did not
+        for q in ("power", "midpoint"):
+            r, seconds = press(k, q)
+            off = np.hypot(*(r["force"][:, :2] - ref["force"][:, :2]).T)[sheared] / ft[sheared]
+            depth = np.abs(r["depth"] - ref["depth"]).max((1, 2)) * 1000
+            pixels = np.abs(r["image"].astype(np.int16) - ref["image"]) > 1
+            rows.append({"steps": int(k), "quadrature": q, "ms_a_press": 1e3 * seconds / n,
+                         **({f"ft_rel_{name}": float(f(off)) for name, f in
+                             (("median", np.median), ("p90", lambda x: np.percentile(x, 90)), ("max", np.max))}
+                            if off.size else {}),
+                         "depth_um_median": float(np.median(depth)), "depth_um_max": float(depth.max()),
+                         "pixels_over_1_count": float(pixels.mean())})
+    return {"presses": n, "sheared": int(sheared.sum()), "sheared_above_n": SHEARED_N, "render_size": list(size),
+            "sensor": sensor, "reference_steps": int(reference),
+            "default": {"steps": STEPS, "quadrature": mechanics.PATH_QUADRATURE},
+            "rows": sorted(rows, key=lambda r: (r["quadrature"], r["steps"]))}
+
+
 # The peak is VmHWM, this process's own high-water mark: getrusage's ru_maxrss also counts the parent's resident
 # size at the fork (Linux keeps the pre-exec high-water mark), which hid the batch under the benchmark's own 2-4 GiB.
 _MEMORY = """
@@ -279,6 +322,12 @@ def run(plan: dict, log=print, data=None) -> dict:
         out["floor"] = floor(plan["floor"], tuple(plan["agreement_size"]))
         log(f"[bench] sim floor: {out['floor']['ms_a_press']:.1f} ms a press, its transforms alone "
             f"{out['floor']['fft_floor_ms_a_press']:.1f} ms")
+    if plan.get("path"):
+        spec = plan["path"]
+        out["path"] = path_convergence(spec["n"], spec["steps"], spec["reference"], tuple(plan["agreement_size"]))
+        log("[bench] sim path, |Ft| off the converged path (median): " + ", ".join(
+            f"{r['steps']} {r['quadrature']} {100 * r.get('ft_rel_median', float('nan')):.1f}%"
+            for r in out["path"]["rows"]))
     out["memory"] = peak_memory(*plan["memory"], plan.get("memory_piece", 0))
     log(f"[bench] sim memory: {out['memory']}")
     for key, spec in (("dataset", plan.get("dataset")), ("sample", plan.get("sample"))):
