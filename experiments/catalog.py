@@ -210,7 +210,8 @@ EXPERIMENTS = (
                _has("pushing", "grasping"), _replot_downstream, args=_reads_ablation, reuses="ablation",
                figures=("experiments/downstream_report.py", "experiments/tables.py", "experiments/style.py")),
     Experiment("bench-sim", "experiments.bench",
-               "The simulator's speed: batched solves against the numpy reference, their agreement, a dataset's time",
+               "The simulator's speed: batched solves against the numpy reference, their agreement, the oblique "
+               "path against itself converged, a dataset's time",
                lambda r: r.get("experiment") == "bench" and "sim_speed" in r, _replot_bench,
                args=_bench("sim"), numbers=("experiments/bench",), flags=("--data",), speed=True),
     Experiment("bench", "experiments.bench",
