@@ -54,16 +54,22 @@ def test_no_slip_below_friction_and_the_cap_above():
     assert slide.slip and np.hypot(*slide.force) == pytest.approx(0.02 * 3.0, rel=1e-6)
 
 
-def test_the_path_converges_in_its_steps():
+def _oblique_on_a_mini(shape: str, **how):
+    """The shear of `shape` pressed to 8 N on a Mini along a path tilted (7, 3) deg, by oblique_batch(**how)."""
     import importlib
 
     press = importlib.import_module("ffjax.sim.press")
     sensor = sim.get_sensor("mini-1")
     dy, dx = sensor.mm_per_px(press._solve_size(sensor))
-    req = press._request(sim.get_shape("sphere_small"), sensor, (0.0, 0.0, 8.0), 0.0, 0.0, 20.0, (7.0, 3.0), 0)
+    req = press._request(sim.get_shape(shape), sensor, (0.0, 0.0, 8.0), 0.0, 0.0, 20.0, (7.0, 3.0), 0)
+    gel = sensor.gel
+    return mechanics.oblique_batch([req.h_s], (dx + dy) / 2, gel.shear_mpa, gel.thickness_mm, gel.friction, [8.0],
+                                   [np.tan(np.radians([7.0, 3.0]))], **how)[1][0]
+
+
+def test_the_path_converges_in_its_steps():
     slope = np.tan(np.radians([7.0, 3.0]))
-    ft = {n: mechanics.oblique_batch([req.h_s], (dx + dy) / 2, sensor.gel.shear_mpa, sensor.gel.thickness_mm,
-                                     sensor.gel.friction, [8.0], [slope], steps=n)[1][0].force for n in (4, 8)}
+    ft = {n: _oblique_on_a_mini("sphere_small", steps=n).force for n in (4, 8)}
     # the default's 4 steps within 5% of 8 (measured against 16 on six indenters: 2.2-7.1% at 4, 0-3.8% at 8)
     assert np.hypot(*(ft[4] - ft[8])) < 0.05 * np.hypot(*ft[8])
     assert np.degrees(np.arctan2(ft[8][1], ft[8][0])) == pytest.approx(np.degrees(np.arctan2(*slope[::-1])), abs=5)
@@ -81,22 +87,13 @@ def test_the_power_quadrature_is_exact_for_a_power_law(q, n):
 
 
 def test_the_power_quadrature_converges_faster_and_moves_the_gel_as_far():
-    import importlib
-
-    press = importlib.import_module("ffjax.sim.press")
-    sensor = sim.get_sensor("mini-1")
-    dy, dx = sensor.mm_per_px(press._solve_size(sensor))
-    req = press._request(sim.get_shape("ring"), sensor, (0.0, 0.0, 8.0), 0.0, 0.0, 20.0, (7.0, 3.0), 0)
-    slope = np.tan(np.radians([7.0, 3.0]))
-    got = {(n, q): mechanics.oblique_batch([req.h_s], (dx + dy) / 2, sensor.gel.shear_mpa, sensor.gel.thickness_mm,
-                                           sensor.gel.friction, [8.0], [slope], steps=n, quadrature=q)[1][0]
-           for n in (2, 8) for q in mechanics.QUADRATURES}
+    got = {(n, q): _oblique_on_a_mini("ring", steps=n, quadrature=q) for n in (2, 8) for q in mechanics.QUADRATURES}
     off = {k: np.hypot(*(v.force - got[8, "power"].force)) / np.hypot(*got[8, "power"].force) for k, v in got.items()}
     # measured against 16 power steps: 10.5% (midpoint) and 1.5% (power) at 2 steps, 0.5% at 4 with the power law
     assert off[2, "power"] < 0.03 < off[2, "midpoint"]
     np.testing.assert_array_equal(got[2, "power"].disp_mm, got[2, "midpoint"].disp_mm)  # the held gel: the move's
     with pytest.raises(ValueError, match="quadrature must be one of"):
-        mechanics.oblique_batch([req.h_s], (dx + dy) / 2, 0.1, 4.5, 1.0, [8.0], [slope], quadrature="simpson")
+        _oblique_on_a_mini("ring", quadrature="simpson")
 
 
 def test_press_takes_the_oblique_path():
