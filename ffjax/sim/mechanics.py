@@ -345,7 +345,8 @@ def _power_weights(mids, stiff, ends) -> np.ndarray:
     approaches `mids` (log-log linear; below the first and beyond the last, the nearest segment's law, which
     reaches 0 at no approach). Exact for any power law K ~ delta^q (a sphere on a half-space: q = 1/2, where the
     midpoint rule's first step, growing from a point, is the one it gets most wrong); 1 where it cannot tell (one
-    step, or stiffnesses that do not grow)."""
+    step, middles out of order, a stiffness not positive). A stiffness that falls between two middles is held
+    constant there."""
     m, k = np.asarray(mids, float), np.asarray(stiff, float)
     n = len(m)
     if n < 2 or np.any(np.diff(m) <= 0) or np.any(k <= 0):
