@@ -22,7 +22,7 @@ from ffjax import registry
 
 def main(argv=None) -> dict:
     ap = common.base_parser(__doc__.strip().splitlines()[0], experiment="ablation",
-                            costs={"quick": "every method, 3 seeds, its dataset made first where missing",
+                            costs={"quick": "every method, 1 seed (published: 3), its dataset made first where missing",
                                    "full": "every method, 3 seeds"})
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
                     help=f"registry names (default: the paper set {', '.join(registry.PAPER_SET)})")

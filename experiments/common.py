@@ -25,10 +25,10 @@ from ffjax.results import fmt, md_table, mean_std, read_json, stamp, write_csv, 
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def prog() -> str | None:
-    """`python -m package.module` for the running module, so usage lines show the command users type
-    (argparse would print the file name, e.g. `ablation.py`); None outside `python -m`."""
-    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+def prog(spec=None) -> str | None:
+    """`python -m package.module` for the module of `spec` (default: the running one), so usage lines show the
+    command users type (argparse would print the file name, e.g. `ablation.py`); None outside `python -m`."""
+    spec = spec or getattr(sys.modules.get("__main__"), "__spec__", None)
     return f"python -m {spec.name}" if spec is not None and spec.name else None
 
 
@@ -63,7 +63,8 @@ def base_parser(description: str, default_preset: str = "quick", costs: dict | N
         measured = measured_cost(experiment, preset) if experiment and preset != "smoke" else None
         if measured:
             costs[preset] = f"{costs[preset]}; {measured}" if preset in costs else measured
-    ap = argparse.ArgumentParser(prog=prog(), description=description)
+    # the caller's module, not __main__: experiments.reproduce runs each experiment in its own process
+    ap = argparse.ArgumentParser(prog=prog(sys._getframe(1).f_globals.get("__spec__")), description=description)
     ap.set_defaults(_costs=costs)
     ap.add_argument("--preset", default=default_preset, choices=configs.PRESETS,
                     help=f"size of data, models and training (default: {default_preset}). Cost: "
@@ -109,7 +110,7 @@ def config_from_args(ap, args) -> dict:
         cli.check_out(ap, args.out)
     git_commit()  # the code this run loaded, recorded before any work
     cost = getattr(args, "_costs", {}).get(args.preset)
-    print(f"{prog() or 'experiment'}: preset {args.preset}" + (f" ({cost})" if cost else "")
+    print(f"{ap.prog}: preset {args.preset}" + (f" ({cost})" if cost else "")
           + ("" if args.preset == "smoke" else "; --preset smoke for a quick check"), file=sys.stderr)
     return cfg
 

@@ -253,7 +253,8 @@ def render_sets(cfg: dict, jobs, n: int, progress: bool = False) -> dict:
                     views.append(m[3])
             seen = sim.press_many_seen(bodies, views, p["force"], p["x_mm"], p["y_mm"], p["yaw_deg"], p["tilt_deg"],
                                        [int(v) for v in p["seed"]], size, path=path,
-                                       steps=int(cfg["data"]["path_steps"]))
+                                       steps=int(cfg["data"]["path_steps"]),
+                                       quadrature=cfg["data"]["path_quadrature"])
             for job, _, _, frame_sensor, bg_sensor, _ in members:
                 done = seen[views.index(frame_sensor)]
                 kept = [s for s in done if not isinstance(s, ValueError)]

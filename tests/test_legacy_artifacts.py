@@ -18,7 +18,7 @@ LEGACY = Path(__file__).parent / "fixtures" / "legacy"
 EXPECTED = json.loads((LEGACY / "expected.json").read_text())
 # the data keys issue 32 added or changed, at the values the code used when the fixtures were made
 THEN = {f"data.{k}": configs.KEYS[f"data.{k}"].old_value
-        for k in ("loading", "tilt_max_deg", "ft_noise", "pattern_moving", "path_steps")}
+        for k in ("loading", "tilt_max_deg", "ft_noise", "pattern_moving", "path_steps", "path_quadrature")}
 
 
 def _frames():
@@ -59,7 +59,8 @@ def test_a_legacy_dataset_opens_and_is_not_taken_for_todays_simulator(tmp_path):
     legacy = json.loads((LEGACY / "data" / "config.json").read_text())
     g = dataset.gen_config(cfg)
     assert g["seed"] == legacy["seed"] and {k: g["data"][k] for k in legacy["data"]} == legacy["data"]
-    assert set(g["data"]) - set(legacy["data"]) == {"loading", "path_steps", "ft_noise", "pattern_moving"}
+    assert set(g["data"]) - set(legacy["data"]) == {"loading", "path_steps", "ft_noise", "pattern_moving",
+                                                       "path_quadrature"}
     folder = tmp_path / "data"
     shutil.copytree(LEGACY / "data", folder)
     assert len(open_split(folder / "train")) == 20

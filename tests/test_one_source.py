@@ -95,7 +95,7 @@ def test_a_new_backbone_is_a_module_an_entry_and_a_config_section(monkeypatch):
 
 
 _LATER_DATA_KEYS = ("fz_min", "tilt_max_deg", "shear_noise", "train_sensor", "loading", "path_steps", "ft_noise",
-                    "pattern_moving")  # issue 15 gave knobs keys, issue 32 added the oblique press's
+                    "pattern_moving", "path_quadrature")  # issues 15 (knobs), 32 (oblique press), 30 (its quadrature)
 
 
 def _without_new_keys(cfg: dict) -> dict:

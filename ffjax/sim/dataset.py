@@ -60,7 +60,7 @@ VERSION = 3
 # Generation knobs (cfg["data"]): every one decides the bytes on disk
 GEN_KEYS = ("render_size", "train_per_indenter", "val_per_indenter", "unseen_per_object",
             "sensor_test_per_indenter", "calib_samples", "fz_max", "shear_max", "shard_size", "fz_min",
-            "tilt_max_deg", "shear_noise", "loading", "path_steps", "ft_noise", "pattern_moving")
+            "tilt_max_deg", "shear_noise", "loading", "path_steps", "ft_noise", "pattern_moving", "path_quadrature")
 # config.json names the training sensor only when it is not this one, the sensor of every folder written before
 # it was a choice: those folders stay valid
 LEGACY_TRAIN_SENSOR = "mini-1-gel1"
@@ -219,7 +219,8 @@ def _press_safe(shapes, sensor, q: dict, size, data: dict) -> list:
         tilt = [tuple(q["tilt_deg"][i]) if tilted else (0.0, 0.0) for i in todo]
         got = sim.press_many([shapes[i] for i in todo], sensor, q["force"][todo], q["x_mm"][todo] * scale,
                              q["y_mm"][todo] * scale, q["yaw_deg"][todo], tilt, [int(v) for v in q["seed"][todo]],
-                             size, path=data["loading"], steps=int(data["path_steps"]))
+                             size, path=data["loading"], steps=int(data["path_steps"]),
+                             quadrature=data["path_quadrature"])
         for i, s in zip(todo, got):
             out[i] = s
         todo = [i for i in todo if isinstance(out[i], ValueError)]
