@@ -38,8 +38,9 @@ SPHERE_RADII_MM = (4.0, 10.0, 20.0, 30.0, 40.0)
 BAR_LENGTHS_MM = (0.0, 4.0, 8.0, 12.0, 20.0, 30.0)
 BAR_RADIUS_MM = 4.0  # the small sphere's: length 0 is that training indenter
 TILT_TURN_DEG = (0.0, 45.0, 90.0, 135.0, 180.0)
-# Ft / (Fz tan tilt) of the oblique press: 0.50 mean (0.35-0.70, 5-95%) over 300 quick training presses on gel 1 at
-# +-15 deg (docs/simulator.md). tilt_shear's push when the data is pressed obliquely: a shear of the training's size
+# Ft / (Fz tan tilt) of the oblique press: 0.49 mean (0.35-0.69, 5-95%) over 300 quick training presses on gel 1 at
+# +-15 deg (2fb3cf1's 2 power-law steps; 0.50 with 4 midpoint steps; docs/simulator.md). tilt_shear's push when the
+# data is pressed obliquely: a shear of the training's size
 PUSH_RATIO = 0.5
 
 

@@ -105,5 +105,6 @@ def check_sim(out, res: dict) -> None:
     text = (out / "report.md").read_text()
     assert "batched layer solves against the numpy reference" in text and "Agreement on the same presses" in text
     assert (out / "sim_speed.png").stat().st_size > 10_000 and "![sim_speed](sim_speed.png)" in text
-    assert "The oblique path's steps (4 presses" in text and "midpoint (default)" not in text  # the default: 4 steps
+    assert "The oblique path's steps (4 presses" in text  # the default, 2 power-law steps, among the rows
+    assert "| 2 | power (default) |" in text and "midpoint (default)" not in text
     assert (out / "path_convergence.png").stat().st_size > 10_000 and "(path_convergence.png)" in text

@@ -17,9 +17,12 @@ from ffjax.sim import dataset as sim_dataset
 
 
 def sim_rates(sizes: dict, n: dict) -> dict:
-    """sim.benchmark (press_batch over all indenters, random forces/poses, 1 process) per render size."""
+    """sim.benchmark (press_batch over all indenters, random forces/poses, 1 process) per render size, compiled:
+    each size's first call is untimed (alone in a process it compiled every solve inside the timing: 4.3 samples/s
+    at 48x64 at 8a59790 against 31.8 after other presses)."""
     out = {}
     for name, size in sizes.items():
+        sim.benchmark(size=tuple(size), n=int(n[name]), verbose=False)
         per_min = sim.benchmark(size=tuple(size), n=int(n[name]), verbose=False)["per_minute_wall"]
         out[name] = {"render_size": list(size), "samples": int(n[name]), "samples_s": per_min / 60}
     return out

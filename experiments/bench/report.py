@@ -396,6 +396,19 @@ def only_report(res: dict) -> str:
     ])
 
 
+def _save(fig, res: dict, out: Path, name: str) -> str:
+    """Stamp a figure with the commit it measured, write it to out/name and close it; its path."""
+    import matplotlib.pyplot as plt
+
+    fig.text(0.995, 0.005, f"ffjax bench · commit {str(res.get('commit', '?'))[:7]}", ha="right", va="bottom",
+             fontsize=7, color="0.35")
+    fig.tight_layout()
+    path = Path(out) / name
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return str(path)
+
+
 def plots(res: dict, out: Path) -> list[str]:
     """One PNG per scaling axis: ms/step and compiled peak memory; the simulator's rates (sim_plot)."""
     files = [sim_plot(res, out)] if res.get("sim_speed") else []
@@ -426,13 +439,7 @@ def plots(res: dict, out: Path) -> list[str]:
             a.grid(alpha=0.3)
         fig.suptitle(f"Quick ViT (DINO RD) train step: scaling with {labels.get(axis, axis)} "
                      f"({len(pts)} points, {'GPU' if _on_gpu(res) else 'CPU'})", fontsize=9)
-        fig.text(0.995, 0.005, f"ffjax bench · commit {str(res.get('commit', '?'))[:7]}", ha="right", va="bottom",
-                 fontsize=7, color="0.35")
-        fig.tight_layout()
-        path = Path(out) / f"scaling_{axis}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        files.append(str(path))
+        files.append(_save(fig, res, out, f"scaling_{axis}.png"))
     return files
 
 
@@ -463,7 +470,7 @@ def sim_plot(res: dict, out: Path) -> str:
     ax.xaxis.set_major_formatter(plain)
     ax.yaxis.set_major_formatter(plain)
     ax.yaxis.set_minor_formatter(NullFormatter())
-    ax.set_yticks([t for t in (1, 2, 3, 5, 10, 20, 30, 50, 100, 200, 300, 500, 1000)
+    ax.set_yticks([t for t in (1, 1.5, 2, 3, 5, 10, 20, 30, 50, 100, 200, 300, 500, 1000)
                    if 0.8 * min(v["reference_s"] for v in rates.values()) <= t
                    <= 1.25 * max(max([*v["batched_s"].values(), *v.get("threaded_s", {}).values()])
                                  for v in rates.values())] or [1])
@@ -478,13 +485,7 @@ def sim_plot(res: dict, out: Path) -> str:
     where = "the GPU" if _on_gpu(res) else f"{m.get('cpu_model', 'the CPU')}, {m.get('cores', '?')} cores"
     ax.set_title(f"Simulator, {first.get('loading', '')} presses ({first.get('steps', '?')} path steps)\non {where}",
                  fontsize=9)  # two lines: a CPU's model name alone can fill the width
-    fig.text(0.995, 0.005, f"ffjax bench · commit {str(res.get('commit', '?'))[:7]}", ha="right", va="bottom",
-             fontsize=7, color="0.35")
-    fig.tight_layout()
-    path = Path(out) / "sim_speed.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return str(path)
+    return _save(fig, res, out, "sim_speed.png")
 
 
 def path_plot(res: dict, out: Path) -> str:
@@ -534,10 +535,4 @@ def path_plot(res: dict, out: Path) -> str:
     size = "x".join(map(str, pc["render_size"]))
     fig.suptitle(f"Oblique path against itself in {pc['reference_steps']} power-law steps: {pc['presses']} presses "
                  f"at {size} on {pc['sensor']} ({pc['sheared']} sheared)", fontsize=9)
-    fig.text(0.995, 0.005, f"ffjax bench · commit {str(res.get('commit', '?'))[:7]}", ha="right", va="bottom",
-             fontsize=7, color="0.35")
-    fig.tight_layout()
-    path = Path(out) / "path_convergence.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return str(path)
+    return _save(fig, res, out, "path_convergence.png")

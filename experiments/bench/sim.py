@@ -26,25 +26,27 @@ from ffjax import sim
 from ffjax.sim import batched, dataset, mechanics
 
 _DATA = configs.get("quick")["data"]  # pressed as the datasets press (oblique: the request is Fz, the tilt pushes)
-LOADING, STEPS = _DATA["loading"], int(_DATA["path_steps"])
+LOADING, STEPS, QUADRATURE = _DATA["loading"], int(_DATA["path_steps"]), _DATA["path_quadrature"]
 
 
 def presses(n: int, seed: int = 0, shapes=None) -> dict:
     """n presses over `shapes` (default: the indenters, in turn) with the dataset's ranges of force and pose."""
     rng = np.random.default_rng(seed)
     shapes = list(shapes or sim.INDENTERS)
-    fz = rng.uniform(0.05, 15.0, n)
-    tilt = rng.uniform(-7.0, 7.0, (n, 2))
+    fz = rng.uniform(_DATA["fz_min"], _DATA["fz_max"], n)
+    tilt = rng.uniform(-_DATA["tilt_max_deg"], _DATA["tilt_max_deg"], (n, 2))
     return {"shape": [shapes[i % len(shapes)] for i in range(n)],
             "forces": np.column_stack([np.zeros((n, 2)), fz]),
             "x_mm": rng.uniform(-2.0, 2.0, n), "y_mm": rng.uniform(-1.5, 1.5, n), "yaw_deg": rng.uniform(-180, 180, n),
             "tilt_deg": tilt, "seeds": np.arange(n)}
 
 
-def _press(p: dict, sensor: str, size, lo: int, hi: int, reference: bool = False) -> dict:
+def _press(p: dict, sensor: str, size, lo: int, hi: int, reference: bool = False, steps: int = STEPS,
+           quadrature: str = QUADRATURE) -> dict:
+    """Presses lo:hi of `p` in one call, loaded as the quick dataset loads them (or along `steps` / `quadrature`)."""
     return sim.press_batch(p["shape"][lo:hi], sensor, p["forces"][lo:hi], p["x_mm"][lo:hi], p["y_mm"][lo:hi],
                            p["yaw_deg"][lo:hi], p["tilt_deg"][lo:hi], p["seeds"][lo:hi], tuple(size),
-                           reference=reference, path=LOADING, steps=STEPS)
+                           reference=reference, path=LOADING, steps=steps, quadrature=quadrature)
 
 
 def _rate(p: dict, sensor: str, size, n: int, batch: int, threads: int = 1, reference: bool = False,
@@ -191,14 +193,13 @@ def path_convergence(n: int, steps, reference: int, size, sensor: str = "mini-1-
     Per variant: the tangential force's distance to the converged one relative to its size (median, p90, max over
     the presses sheared by more than SHEARED_N), the depth's (um; median and max over presses), the share of pixels
     more than 1 count apart, and its time a press in one call (the power variant after an untimed call; the
-    midpoint one runs the very same solves, compiled by then). Where the default (STEPS with
-    mechanics.PATH_QUADRATURE) stands between fewer steps and the converged path."""
+    midpoint one runs the very same solves, compiled by then). Where the default (STEPS with QUADRATURE, the
+    quick config's) stands between fewer steps and the converged path."""
     p = presses(n, seed=5)
 
     def press(k: int, quadrature: str) -> tuple[dict, float]:
         t0 = time.perf_counter()
-        r = sim.press_batch(p["shape"], sensor, p["forces"], p["x_mm"], p["y_mm"], p["yaw_deg"], p["tilt_deg"],
-                            p["seeds"], tuple(size), path="oblique", steps=k, quadrature=quadrature)
+        r = _press(p, sensor, size, 0, n, steps=k, quadrature=quadrature)
         return r, time.perf_counter() - t0
 
     ref, _ = press(reference, "power")
@@ -220,7 +221,7 @@ def path_convergence(n: int, steps, reference: int, size, sensor: str = "mini-1-
                          "pixels_over_1_count": float(pixels.mean())})
     return {"presses": n, "sheared": int(sheared.sum()), "sheared_above_n": SHEARED_N, "render_size": list(size),
             "sensor": sensor, "reference_steps": int(reference),
-            "default": {"steps": STEPS, "quadrature": mechanics.PATH_QUADRATURE},
+            "default": {"steps": STEPS, "quadrature": QUADRATURE},
             "rows": sorted(rows, key=lambda r: (r["quadrature"], r["steps"]))}
 
 
