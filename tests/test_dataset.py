@@ -112,7 +112,8 @@ def test_refused_pose_is_pulled_inwards():
     q = {"force": np.array([[0.1, 0.0, 5.0], [0.0, 0.2, 3.0]]), "x_mm": np.array([x, 1.0]),
          "y_mm": np.zeros(2), "yaw_deg": np.zeros(2), "tilt_deg": np.array([[1.0, 0.0], [0.0, 0.0]]),
          "seed": np.array([3, 4])}
-    s = dataset._press_safe([sim.get_shape("cone")] * 2, sensor, q, (24, 32), {"loading": "shear", "path_steps": 2})
+    data = {"loading": "shear", "path_steps": 2, "path_quadrature": "power"}
+    s = dataset._press_safe([sim.get_shape("cone")] * 2, sensor, q, (24, 32), data)
     assert s[0].meta["x_mm"] == pytest.approx(x / 2) and s[0].force[2] == pytest.approx(5.0)
     assert s[1].meta["x_mm"] == 1.0 and s[1].force[2] == pytest.approx(3.0)
 
