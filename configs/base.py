@@ -9,6 +9,7 @@ the keys added after runs and datasets were saved: caches hash configs without t
 """
 
 from configs.checks import INT, NN, NN_INT, POS, POS_INT, PROB, SCALE, Key, boolean, choice, defaults, num, seq
+from ffjax.sim import mechanics
 from ffjax.sim.sensors import SENSOR_NAMES
 
 _FORCE3 = seq(num(), length=3, optional=True)
@@ -31,10 +32,10 @@ SPEC = {
         # how a press loads the gel: "oblique", the paper's press along the tilted tool axis (the shear comes from
         # the path); "shear": pressed to Fz, then Fz * tan(tilt) + noise applied sideways in stick (before issue 32)
         "loading": Key("oblique", choice("oblique", "shear"), before="shear"),
-        # oblique: the press's path in steps and how a step's stiffness stands for it (mechanics.oblique_batch): 2
-        # power-law steps put Ft a median 1.1% off the path converged (4 midpoint steps before: 3.9%; bench --only sim)
-        "path_steps": Key(2, POS_INT),
-        "path_quadrature": Key("power", choice("midpoint", "power"), before="midpoint"),
+        # oblique: the press's path in steps and how a step's stiffness stands for it (mechanics.oblique_batch): the
+        # simulator's own defaults, chosen by measurement there (mechanics.PATH_STEPS)
+        "path_steps": Key(mechanics.PATH_STEPS, POS_INT),
+        "path_quadrature": Key(mechanics.PATH_QUADRATURE, choice(*mechanics.QUADRATURES), before="midpoint"),
         # roll/pitch of a press uniform in +-tilt_max_deg; 15: the release's Fx, Fy of +-2 N at Fz 15 N
         # (docs/simulator.md)
         "tilt_max_deg": Key(15.0, num(0, 90, hi_open=True), before=7.0),

@@ -138,12 +138,15 @@ def ablation_folder(ap, given, preset: str) -> Path:
 
 @functools.cache
 def git_commit() -> str:
-    """HEAD's hash, with "-dirty" when tracked files differ from it (numbers then are not from a commit). Read
-    once per process, at the run's start (config_from_args): a commit made while a run goes on is not its code."""
+    """HEAD's hash, with "-dirty" when tracked files other than documentation (docs/, *.md) differ from it: numbers
+    then are not from a commit (results published and tables written by an earlier call are not code, so a
+    `reproduce --only` after a publishing one still runs on its commit). Read once per process, at the run's start
+    (config_from_args): a commit made while a run goes on is not its code."""
     try:
         head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
                               check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)docs",
+                                ":(exclude,glob)**/*.md"], cwd=ROOT,
                                capture_output=True, text=True, check=True).stdout.strip()
         return head + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):

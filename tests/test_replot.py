@@ -77,6 +77,32 @@ def test_the_commit_is_read_once_at_the_start_of_a_run(monkeypatch):
     common.git_commit.cache_clear()
 
 
+def test_only_code_makes_a_run_dirty(tmp_path, monkeypatch):
+    """Published results and tables (docs/, *.md) are not code: a run after a publishing call still records its
+    commit; a changed source file makes it "-dirty"."""
+    import subprocess
+
+    from experiments import common
+
+    git = lambda *a: subprocess.run(["git", *a], cwd=tmp_path, check=True, capture_output=True)  # noqa: E731
+    git("init", "-q")
+    for name in ("docs/results/x.json", "README.md", "ffjax/code.py"):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text("0\n")
+    git("add", ".")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "first")
+    monkeypatch.setattr(common, "ROOT", tmp_path)
+    read = lambda: (common.git_commit.cache_clear(), common.git_commit())[1]  # noqa: E731
+    head = read()
+    assert len(head) == 40
+    (tmp_path / "docs/results/x.json").write_text("1\n")
+    (tmp_path / "README.md").write_text("1\n")
+    assert read() == head
+    (tmp_path / "ffjax/code.py").write_text("1\n")
+    assert read() == head + "-dirty"
+    common.git_commit.cache_clear()
+
+
 def test_replot_records_the_commit_read_before_it_rewrote_anything(tmp_path, monkeypatch):
     """Re-rendering rewrites tracked files (results.json, the tables): a commit read after the first folder would
     say "-dirty" for every folder of a call on a clean checkout, and experiments.status would keep asking a replot."""

@@ -53,6 +53,25 @@ def test_solved_pressure_carries_the_requested_force_and_touches_only_the_body()
     assert n.surface.min() < -0.01  # the displaced volume rises beside the contact
 
 
+@pytest.mark.parametrize("fz, pose", [(3.28, (-0.257, 0.628, -128.5, (5.92, -12.39))),
+                                      (10.42, (1.196, -0.408, 96.77, (12.10, 11.01)))])
+def test_a_tilted_edge_is_not_pressed_to_the_glass_on_one_cell(fz, pose):
+    """The knife edge at a large tilt: the batched solve once restiffened its target at an approach read off its
+    first, unsettled pressure (4.2 mm on a 4 mm gel) and settled on a second fixed point, the whole force on the
+    body's lowest cell pressed 3.2 mm in (batched.STIFFEN_AFTER). It finds the reference's contact."""
+    sensor = sim.get_sensor("mini-1", gel=2)
+    size = (60, 80)  # the force solve's own grid (quarter native)
+    dy, dx = sensor.mm_per_px(size)
+    h = sim.body_heights(sim.get_shape("prism_edge"), sensor, size, *pose).astype(np.float64)
+    gel = sensor.gel
+    new, ref = (mechanics.solve_normal_batch(h[None], (dx + dy) / 2, gel.shear_mpa, gel.thickness_mm, [fz],
+                                             reference)[0] for reference in (False, True))
+    assert ref.contact.sum() > 100  # a line contact along the edge, not a cell
+    assert new.contact.sum() == pytest.approx(ref.contact.sum(), rel=0.02)
+    assert abs(new.delta - ref.delta) < 1e-3  # mm: within 1 um, the agreement target
+    assert np.abs(new.surface - ref.surface).max() < 1e-3
+
+
 def test_wide_flat_face_is_stiffer_than_a_narrow_one():
     """A bonded incompressible layer stiffens as the contact widens against its thickness: at equal force
     an 18 mm flat face sinks less than a third as far as a 5 mm one (columns alone give the area ratio

@@ -25,20 +25,20 @@ from experiments import common
 from ffjax import sim
 from ffjax.sim import batched, dataset, mechanics
 
-_DATA = configs.get("quick")["data"]  # pressed as the datasets press (oblique: the request is Fz, the tilt pushes)
+_QUICK = configs.get("quick")  # pressed as its dataset presses (oblique: the request is Fz, the tilt pushes)
+_DATA = _QUICK["data"]
+_STREAMS = 10_000  # the benchmark's presses draw from random streams (SplitSpec.index) no split of a dataset uses
 LOADING, STEPS, QUADRATURE = _DATA["loading"], int(_DATA["path_steps"]), _DATA["path_quadrature"]
 
 
-def presses(n: int, seed: int = 0, shapes=None) -> dict:
-    """n presses over `shapes` (default: the indenters, in turn) with the dataset's ranges of force and pose."""
-    rng = np.random.default_rng(seed)
-    shapes = list(shapes or sim.INDENTERS)
-    fz = rng.uniform(_DATA["fz_min"], _DATA["fz_max"], n)
-    tilt = rng.uniform(-_DATA["tilt_max_deg"], _DATA["tilt_max_deg"], (n, 2))
-    return {"shape": [shapes[i % len(shapes)] for i in range(n)],
-            "forces": np.column_stack([np.zeros((n, 2)), fz]),
-            "x_mm": rng.uniform(-2.0, 2.0, n), "y_mm": rng.uniform(-1.5, 1.5, n), "yaw_deg": rng.uniform(-180, 180, n),
-            "tilt_deg": tilt, "seeds": np.arange(n)}
+def presses(n: int, seed: int = 0, shapes=None, sensor: str = "mini-1-gel1") -> dict:
+    """n presses over `shapes` (default: the indenters) on `sensor`, drawn as the quick dataset draws a split's
+    (`dataset.sample_presses`: its forces, offsets, yaws and tilts), in their shuffled order; seed picks the stream."""
+    shapes = tuple(shapes or sim.INDENTERS)
+    spec = dataset.SplitSpec(f"bench/{seed}", sensor, shapes, -(-n // len(shapes)), _STREAMS + seed)
+    p = {k: v[:n] for k, v in dataset.sample_presses(spec, _QUICK).items()}
+    return {"shape": [shapes[i] for i in p["shape_index"]], "forces": p["force"], "x_mm": p["x_mm"], "y_mm": p["y_mm"],
+            "yaw_deg": p["yaw_deg"], "tilt_deg": p["tilt_deg"], "seeds": p["seed"]}
 
 
 def _press(p: dict, sensor: str, size, lo: int, hi: int, reference: bool = False, steps: int = STEPS,
@@ -74,7 +74,7 @@ def rates(sizes: dict, batches, n: int, reference_n: int, sensor: str = "mini-1-
     than n to be timed over several calls)."""
     threads = batched.threads()
     count = {int(b): max(n, calls * int(b) * threads) for b in batches}
-    p = presses(max(*count.values(), reference_n) + max(batches) * threads, seed=1)
+    p = presses(max(*count.values(), reference_n) + max(batches) * threads, seed=1, sensor=sensor)
     out = {}
     for name, size in sizes.items():
         _rate(p, sensor, size, 1, 1, reference=True, warm=False)  # the shapes' tables built outside the timing
@@ -115,7 +115,7 @@ def floor(n: int, size, sensor: str = "mini-1-gel1") -> dict:
     iterations recorded, and each solve's FFTs timed alone at the device's batch (`_transform_pair_s`). The
     transforms' sum is a floor for these solves with these iterations on this machine: no fusion or overhead
     saved gets under it, only fewer solves, fewer iterations or smaller grids."""
-    p = presses(n, seed=4)
+    p = presses(n, seed=4, sensor=sensor)
     before = batched.THREADS
     batched.THREADS = 1
     try:
@@ -156,7 +156,7 @@ def agreement(size, per_shape: int, sensors=None) -> dict:
     out = {}
     for key in sensors or sim.SENSOR_NAMES:
         sensor = sim.get_sensor(key)
-        p = presses(per_shape * len(shapes), seed=2, shapes=shapes)
+        p = presses(per_shape * len(shapes), seed=2, shapes=shapes, sensor=key)
         args = ([sim.get_shape(s) for s in p["shape"]], sensor, p["forces"], p["x_mm"], p["y_mm"], p["yaw_deg"],
                 p["tilt_deg"], [int(v) for v in p["seeds"]], tuple(size))
         how = {"path": LOADING, "steps": STEPS}
@@ -195,7 +195,7 @@ def path_convergence(n: int, steps, reference: int, size, sensor: str = "mini-1-
     more than 1 count apart, and its time a press in one call (the power variant after an untimed call; the
     midpoint one runs the very same solves, compiled by then). Where the default (STEPS with QUADRATURE, the
     quick config's) stands between fewer steps and the converged path."""
-    p = presses(n, seed=5)
+    p = presses(n, seed=5, sensor=sensor)
 
     def press(k: int, quadrature: str) -> tuple[dict, float]:
         t0 = time.perf_counter()

@@ -51,6 +51,11 @@ THREADS: int | None = None  # None: threads() chooses; a dataset worker process 
 _RECORD: list | None = None  # set inside record_solves()
 RESTART = 1e-3  # x thickness: an approach that moves more than this in one iteration restarts the CG directions
 RUNAWAY = 200  # iterations after which a press beyond the refused approach stops
+STIFFEN_AFTER = 0.1  # the linear layer's solve runs until its pressure changes by less than this (relative) before
+# the target follows the approach: the approach read off a pressure far from converged (the first iterations' spread
+# over the whole body) can exceed the gel's thickness, and a target stiffened there pulls the load onto the body's
+# lowest cell, a second, unphysical fixed point (one cell pressed to the glass) the solve then stays in. 0.1: no press
+# of ~2,900 knife edges and corners off the reference (docs/simulator.md); 1e-2 costs 25-60% more iterations
 _TINY = 1e-30  # guards divisions that are 0 / 0 only for a press already frozen
 
 
@@ -157,9 +162,10 @@ def _normal_one(hb, fz, kernel, eps, psi, cell, thickness, tol, outer_tol, max_i
     """mechanics' normal solve of one press on the padded grid: (delta, u, p, iterations); u is the linear
     layer's displacement at the solution.
 
-    Polonsky-Keer conjugate gradients (elastic_layer.solve_contact) on a target that follows the approach: each
-    iteration restiffens the body's heights at the approach the current pressure gives (the first uses them
-    as they are), so the fixed point on the approach converges inside one CG instead of over three solves.
+    Polonsky-Keer conjugate gradients (elastic_layer.solve_contact) on a target that follows the approach: once the
+    linear layer's solve has settled (STIFFEN_AFTER; the heights as they are until then), each iteration restiffens
+    the body's heights at the approach the current pressure gives, so the fixed point on the approach converges
+    inside one CG instead of over three solves.
     It stops where both the reference's loops stop: the pressure changes by less than `tol` (relative) and
     the approach by less than `outer_tol` x thickness; and, past RUNAWAY iterations (a converging press needs
     fewer than half of them), a press whose approach is beyond `refuse_above` (mm), which the caller refuses:
@@ -175,11 +181,12 @@ def _normal_one(hb, fz, kernel, eps, psi, cell, thickness, tol, outer_tol, max_i
         return (it < max_iter) & ((change >= tol) | (moved >= outer_tol * thickness)) & ~runaway
 
     def step(c):
-        it, p, t, g_old, conj, change, delta_before, _ = c
+        it, p, t, g_old, conj, change, delta_before, moved_before = c
         u = apply(p)
         on = p > 0
         n_on = jnp.sum(on)
-        first = it == 0
+        # the linear layer until its solve has settled (STIFFEN_AFTER); moved stays inf until the target follows
+        first = jnp.isinf(moved_before) & (change >= STIFFEN_AFTER)
         if stiffening:
             delta = jnp.where(first, 0.0, _masked_mean(hb + _soften(u, thickness, eps, psi), on, n_on))
             target = -_stiffen(jnp.minimum(delta, eps[-1] * thickness) - hb, thickness, eps, psi)
@@ -192,7 +199,7 @@ def _normal_one(hb, fz, kernel, eps, psi, cell, thickness, tol, outer_tol, max_i
         on = p > 0
         n_on = jnp.sum(on)
         moved = jnp.where(first, jnp.inf, jnp.abs(delta - delta_before))
-        conj = conj & (moved < RESTART * thickness)  # a target that moved a lot starts the directions afresh
+        conj = conj & (first | (moved < RESTART * thickness))  # a target that moved a lot starts the directions afresh
         g = h + u
         g = g - _masked_mean(g, on, n_on)
         gg = jnp.sum(jnp.where(on, g * g, 0.0))

@@ -334,9 +334,11 @@ def _approach_at_ends(f_mid, d_mid, fz: float, d_end: float, steps: int) -> np.n
     return np.maximum.accumulate(out)
 
 
-# The oblique press's path (bench --only sim, "The oblique path's steps", d56bbdb): 2 power-law steps put its shear a
-# median 1.1% (max 5.9%) off the path converged, 0.54x the time a press of the 4 midpoint steps before (3.9%, max 9.4%);
-# its depth a median 6.2 um off (max 70 um; 41 um at 4 steps), since only more steps shrink the depth's path error.
+# The oblique press's path, the default of every press and of the config (data.path_steps, data.path_quadrature):
+# chosen on bench --only sim's "The oblique path's steps" (d56bbdb, +-7 deg tilts): 2 power-law steps put its shear a
+# median 1.1% (max 5.9%) off the path converged, 0.54x the time a press of the 4 midpoint steps before (3.9%, max
+# 9.4%); its depth a median 6.2 um off (max 70 um; 41 um at 4 steps): only more steps shrink the depth's path error.
+# docs/benchmarks.md has the table at today's +-15 deg.
 PATH_STEPS = 2
 QUADRATURES = ("midpoint", "power")
 PATH_QUADRATURE = "power"  # how a step's stiffness stands for it (`oblique_batch`)
