@@ -138,3 +138,21 @@ def test_a_new_data_folder_is_announced(tmp_path, capsys, monkeypatch):
 def test_unknown_method_fails_before_work(tmp_path):
     with pytest.raises(KeyError, match="unknown method"):
         ablation.main(["--preset", "smoke", "--methods", "nope", "--out", str(tmp_path)])
+
+
+def test_calibration_is_said_to_lower_the_error_only_beyond_seed_noise():
+    """A 0.02-point fall inside a 0.3 spread is no gain: neither a "yes" nor a bold number (it was both)."""
+    c = lambda m, sd: {"mean": m, "std": sd, "n": 3}  # noqa: E731
+    d = c(4.0, 1.0)
+    cal = {"dino_rd": {"mini-2/gel-1": {"before": c(6.87, 0.1), "after": c(6.85, 0.3), "degradation_pct": d},
+                       "digit": {"before": c(25.0, 0.4), "after": c(16.0, 1.6), "degradation_pct": d}},
+           "resnet_rd": {"mini-2/gel-1": {"before": c(8.1, 0.3), "after": c(7.5, 0.2), "degradation_pct": d},
+                         "digit": {"before": c(20.0, 0.4), "after": c(22.0, 0.5), "degradation_pct": d}}}
+    res = {"table1": {}, "table2": {}, "table3": cal, "config": {"data": {"calib_samples": 100}}}
+    f = tables.findings(res)["table3"]
+    assert "lowers the target sensor's error: does NOT reproduce" in f
+    assert "DINO RD: within noise on mini-2/gel-1; ResNet RD: raised on digit" in f
+    assert "**" not in tables._before_after(cal["dino_rd"]["mini-2/gel-1"])
+    assert "**" in tables._before_after(cal["dino_rd"]["digit"])
+    cal.pop("resnet_rd")
+    assert "error: tie, not resolved" in tables.findings(res)["table3"]
