@@ -44,13 +44,18 @@ def _all_of(verdicts) -> bool | str:
     return False if False in vs else ("tie" if "tie" in vs else True)
 
 
+def _listed(items: list) -> str:
+    """'a', 'a and b', 'a, b and c'."""
+    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} and {items[-1]}"
+
+
 def _lowers_text(per_target: dict) -> str:
     """'yes', or where calibration did not lower the error beyond the noise: 'within noise on mini-2/gel-1'."""
     said = []
     for verdict, word in (("tie", "within noise"), (False, "raised")):
-        ts = [t for t, v in per_target.items() if v == verdict]
-        if ts:
-            said.append(f"{word} on {', '.join(ts[:-1]) + ' and ' if len(ts) > 1 else ''}{ts[-1]}")
+        targets = [t for t, v in per_target.items() if v == verdict]
+        if targets:
+            said.append(f"{word} on {_listed(targets)}")
     return "; ".join(said) or "yes"
 
 
