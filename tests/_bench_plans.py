@@ -89,7 +89,6 @@ def check_sim(out, res: dict) -> None:
     r = res["sim_speed"]["rates"]["24x32"]
     assert r["reference_s"] > 0 and {int(b) for b in r["batched_s"]} == {1, 4}  # JSON keys: strings
     assert all(v > 0 for v in r["speedup"].values()) and r["loading"] == "oblique"
-    assert r["threads"] == 1 or {int(b) for b in r["threaded_s"]} == {1, 4}  # one per core on a CPU
     ag = res["sim_speed"]["agreement"]
     assert set(ag) == {"mini-1-gel1", "digit"}
     for v in ag.values():  # the same physics on both paths (the bench's own measure, loose: a tiny grid)

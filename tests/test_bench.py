@@ -104,7 +104,7 @@ def test_the_sim_report_states_a_gpu_runs_memory_and_the_paper_sample():
     from experiments.bench import report as bench_report
 
     rates = {"48x64": {"render_size": [48, 64], "reference_s": 3.0, "batched_s": {32: 300.0, 256: 900.0},
-                       "threaded_s": {}, "threads": 1, "speedup": {32: 100.0, 256: 300.0}, "loading": "oblique",
+                       "speedup": {32: 100.0, 256: 300.0}, "loading": "oblique",
                        "steps": 4}}
     ss = {"rates": rates, "default_batch": 32,
           "memory": {"batch": 256, "render_size": [240, 320], "peak_rss_mib": 3000.0, "batch_growth_mib": 900.0,
@@ -167,7 +167,7 @@ def test_the_sim_floor_reads_every_solve_and_leaves_the_recording_off():
     assert 0 < fl["solves"]["stick"]["a_press"] <= bench_sim.STEPS
     assert all(v["iterations_mean"] >= 1 and v["fft_floor_ms_a_press"] > 0 for v in fl["solves"].values())
     assert 0 < fl["fft_floor_ms_a_press"] < fl["ms_a_press"]
-    rates = {"24x32": {"render_size": [24, 32], "reference_s": 1.0, "batched_s": {8: 2.0}, "threaded_s": {},
-                       "threads": 1, "speedup": {8: 2.0}, "loading": "oblique", "steps": bench_sim.STEPS}}
+    rates = {"24x32": {"render_size": [24, 32], "reference_s": 1.0, "batched_s": {8: 2.0},
+                       "speedup": {8: 2.0}, "loading": "oblique", "steps": bench_sim.STEPS}}
     text = report.sim_tables({"rates": rates, "floor": fl})
     assert "Where a press's time goes (4 presses at 24x32" in text and "| both |" in text

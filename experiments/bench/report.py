@@ -285,23 +285,19 @@ def sim_tables(ss: dict | None) -> str:
         return ""
     rates = ss["rates"]
     batches = sorted({int(b) for v in rates.values() for b in v["batched_s"]})
-    threads = max((int(v.get("threads", 1)) for v in rates.values() if v.get("threaded_s")), default=1)
 
     def best(v):
         b, x = max(v["speedup"].items(), key=lambda kv: kv[1])
-        on = v.get("threaded_s", {}).get(b, 0.0) > v["batched_s"][b]
-        return f"{_f(x, 2)} (batch {b}{f', {threads} threads' if on else ''})"
+        return f"{_f(x, 2)} (batch {b})"
 
-    cols = [f"batched, batch {b}" for b in batches] + [f"batch {b}, {threads} threads" for b in batches] * (threads > 1)
-    rows = [[k, _f(v["reference_s"]), *(_f(v["batched_s"][b]) for b in batches),
-             *((_f(v["threaded_s"][b]) for b in batches) if threads > 1 else ()), best(v)] for k, v in rates.items()]
+    cols = [f"batched, batch {b}" for b in batches]
+    rows = [[k, _f(v["reference_s"]), *(_f(v["batched_s"][b]) for b in batches), best(v)] for k, v in rates.items()]
     first = next(iter(rates.values()))
     how = (f"pressed as the dataset presses ({first['loading']}, {first['steps']} steps: {first['steps'] + 1} normal "
            f"and {first['steps']} stick solves per press)" if first.get("loading") else "pressed, then pushed")
     out = ["\n## The simulator: batched layer solves against the numpy reference\n",
            f"Presses per second in one process over mixed indenters with the dataset's ranges of force and pose, "
-           f"{how}; the reference presses one at a time on one core (its rate does not depend on a batch); "
-           "'threads': a call's pieces solved that many at once, one per core (`ffjax.sim.batched.threads`). "
+           f"{how}; the reference presses one at a time (its rate does not depend on a batch). "
            "Measured in this run; compiling is not counted.\n",
            md_table(["render size", "reference presses/s", *cols, "best speedup"], rows)]
     if ss.get("default_batch"):
@@ -457,9 +453,6 @@ def sim_plot(res: dict, out: Path) -> str:
         colour = f"C{i}"
         bs = sorted(v["batched_s"], key=int)
         ax.plot([int(b) for b in bs], [v["batched_s"][b] for b in bs], "o-", color=colour, label=f"{size} batched")
-        if v.get("threaded_s"):
-            ax.plot([int(b) for b in bs], [v["threaded_s"][b] for b in bs], "s--", color=colour, mfc="white",
-                    label=f"{size} batched, {v['threads']} threads")
         ax.axhline(v["reference_s"], color=colour, ls=":", lw=1.5, label=f"{size} numpy reference")
     from matplotlib.ticker import FuncFormatter, NullFormatter
 
@@ -472,8 +465,7 @@ def sim_plot(res: dict, out: Path) -> str:
     ax.yaxis.set_minor_formatter(NullFormatter())
     ax.set_yticks([t for t in (1, 1.5, 2, 3, 5, 10, 20, 30, 50, 100, 200, 300, 500, 1000)
                    if 0.8 * min(v["reference_s"] for v in rates.values()) <= t
-                   <= 1.25 * max(max([*v["batched_s"].values(), *v.get("threaded_s", {}).values()])
-                                 for v in rates.values())] or [1])
+                   <= 1.25 * max(max(v["batched_s"].values()) for v in rates.values())] or [1])
     first = next(iter(rates.values()))
     counts = set(first.get("presses", {}).values()) or {first.get("n", "?")}
     each = f"{min(counts)}" if len(counts) == 1 else f"{min(counts)}-{max(counts)}"

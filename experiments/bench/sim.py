@@ -1,6 +1,6 @@
 """The simulator's side of `experiments.bench --only sim`: presses per second of the batched layer solves
 (ffjax.sim.batched, what the simulator runs) against the numpy reference (the path before them, kept for this
-and for the agreement checks), in one run, per render size, batch size and number of threads, pressed as the
+and for the agreement checks), in one run, per render size and batch size, pressed as the
 dataset presses (the oblique press in data.path_steps increments: path_steps + 1 normal and path_steps stick
 solves each); their agreement on every indenter, unseen object and sensor; the oblique path's distance to itself
 converged in its steps, per quadrature, against its time; the peak memory of one batch; and a
@@ -49,13 +49,12 @@ def _press(p: dict, sensor: str, size, lo: int, hi: int, reference: bool = False
                            reference=reference, path=LOADING, steps=steps, quadrature=quadrature)
 
 
-def _rate(p: dict, sensor: str, size, n: int, batch: int, threads: int = 1, reference: bool = False,
-          warm: bool = True) -> float:
+def _rate(p: dict, sensor: str, size, n: int, batch: int, reference: bool = False, warm: bool = True) -> float:
     """Presses per second over the first n presses, pressed in one call (as a dataset shard is) solved in pieces of
-    `batch`, `threads` pieces at once; warm: after an untimed call on the same presses, so compiling (each window
-    side's programs) is not counted."""
-    before = batched.MAX_BATCH, batched.THREADS
-    batched.MAX_BATCH, batched.THREADS = batch, threads  # each piece one solve of this size, on any device
+    `batch`; warm: after an untimed call on the same presses, so compiling (each window side's programs) is not
+    counted."""
+    before = batched.MAX_BATCH
+    batched.MAX_BATCH = batch  # each piece one solve of this size, on any device
     try:
         if warm:
             _press(p, sensor, size, 0, n, reference)
@@ -63,30 +62,26 @@ def _rate(p: dict, sensor: str, size, n: int, batch: int, threads: int = 1, refe
         _press(p, sensor, size, 0, n, reference)
         return n / (time.perf_counter() - t0)
     finally:
-        batched.MAX_BATCH, batched.THREADS = before
+        batched.MAX_BATCH = before
 
 
 def rates(sizes: dict, batches, n: int, reference_n: int, sensor: str = "mini-1-gel1", calls: int = 0,
           log=print) -> dict:
-    """{size name: {"reference_s", "batched_s": {batch: presses/s}, "threaded_s": {batch: presses/s with
-    `threads` pieces at once} (on a CPU of more than one core), "speedup": {batch: best ratio}}}, all in this
-    run. Each batch size presses max(n, calls x batch x threads) presses (calls: a GPU's large batches need more
-    than n to be timed over several calls)."""
-    threads = batched.threads()
-    count = {int(b): max(n, calls * int(b) * threads) for b in batches}
-    p = presses(max(*count.values(), reference_n) + max(batches) * threads, seed=1, sensor=sensor)
+    """{size name: {"reference_s", "batched_s": {batch: presses/s}, "speedup": {batch: ratio}}}, all in this
+    run. Each batch size presses max(n, calls x batch) presses (calls: a GPU's large batches need more than n to
+    be timed over several calls)."""
+    count = {int(b): max(n, calls * int(b)) for b in batches}
+    p = presses(max(*count.values(), reference_n) + max(batches), seed=1, sensor=sensor)
     out = {}
     for name, size in sizes.items():
         _rate(p, sensor, size, 1, 1, reference=True, warm=False)  # the shapes' tables built outside the timing
         ref = _rate(p, sensor, size, reference_n, 1, reference=True, warm=False)  # numpy: nothing to compile
         new = {b: _rate(p, sensor, size, k, b) for b, k in count.items()}
-        many = {b: _rate(p, sensor, size, k, b, threads, warm=False) for b, k in count.items()} if threads > 1 else {}
-        out[name] = {"render_size": list(size), "reference_s": ref, "batched_s": new, "threaded_s": many,
-                     "threads": threads, "speedup": {b: max(r, many.get(b, 0.0)) / ref for b, r in new.items()},
+        out[name] = {"render_size": list(size), "reference_s": ref, "batched_s": new,
+                     "speedup": {b: r / ref for b, r in new.items()},
                      "n": n, "presses": count, "reference_n": reference_n, "loading": LOADING, "steps": STEPS}
         log(f"[bench] sim {name}: reference {ref:.1f}/s, batched " + ", ".join(
-            f"batch {b} {r:.1f}/s" for b, r in new.items()) + "".join(
-            f", {threads} threads batch {b} {r:.1f}/s" for b, r in many.items()))
+            f"batch {b} {r:.1f}/s" for b, r in new.items()))
     return out
 
 
@@ -111,21 +106,16 @@ _CHANNELS = {"normal": 1, "stick": 3}  # the stick solve transforms the traction
 
 def floor(n: int, size, sensor: str = "mini-1-gel1") -> dict:
     """Where a press's time goes against what its transforms alone cost: n presses pressed as the dataset presses
-    in one call on one thread (after an untimed call: compiling not counted), each layer solve's window and
+    in one call (after an untimed call: compiling not counted), each layer solve's window and
     iterations recorded, and each solve's FFTs timed alone at the device's batch (`_transform_pair_s`). The
     transforms' sum is a floor for these solves with these iterations on this machine: no fusion or overhead
     saved gets under it, only fewer solves, fewer iterations or smaller grids."""
     p = presses(n, seed=4, sensor=sensor)
-    before = batched.THREADS
-    batched.THREADS = 1
-    try:
+    _press(p, sensor, size, 0, n)
+    with batched.record_solves() as seen:
+        t0 = time.perf_counter()
         _press(p, sensor, size, 0, n)
-        with batched.record_solves() as seen:
-            t0 = time.perf_counter()
-            _press(p, sensor, size, 0, n)
-            seconds = time.perf_counter() - t0
-    finally:
-        batched.THREADS = before
+        seconds = time.perf_counter() - t0
     pair, out = {}, {"presses": n, "render_size": list(size), "ms_a_press": 1e3 * seconds / n,
                      "batch": batched.max_batch(), "solves": {}}
     for kind in ("normal", "stick"):

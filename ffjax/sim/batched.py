@@ -25,9 +25,10 @@ side each (WINDOW_SIDES), so a grid compiles few programs.
 Batches are padded to one of BATCHES (copies of the first press, dropped after), so a sensor and grid compile
 at most len(BATCHES) programs per solve; larger batches are cut into pieces of max_batch() presses: 32 on a
 GPU, 8 on a CPU, where a batch runs until its slowest press converges and batching gains nothing (measured by
-`python -m experiments.bench --only sim`: batch 32 at 0.7-0.8x the rate of batch 8). On a CPU the pieces run
-threads() at a time, one per core: XLA runs one CPU program's FFTs on one core, and each piece is the same
-program on the same presses whichever thread runs it, so the results do not depend on the threads.
+`python -m experiments.bench --only sim`). The pieces run one after another from the calling thread: jax 0.11's
+CPU FFTs already spread over the cores, and two Python threads each running a program of FFTs on XLA's shared
+pool deadlocked there (both pool threads waiting inside an FFT for work only a free pool thread could do). A
+dataset's parallelism is processes (`ffjax.sim.dataset`), one pool each.
 """
 
 from __future__ import annotations
@@ -35,7 +36,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import jax
@@ -47,7 +47,6 @@ from ffjax.sim.elastic_layer import FAR, Layer
 
 BATCHES = (1, 8, 32)
 MAX_BATCH: int | None = None  # None: max_batch() chooses by device; the benchmark sets it to time each size
-THREADS: int | None = None  # None: threads() chooses; a dataset worker process sets 1 (one process per core)
 _RECORD: list | None = None  # set inside record_solves()
 RESTART = 1e-3  # x thickness: an approach that moves more than this in one iteration restarts the CG directions
 RUNAWAY = 200  # iterations after which a press beyond the refused approach stops
@@ -70,25 +69,9 @@ def max_batch() -> int:
     return MAX_BATCH or (BATCHES[-1] if on_accelerator() else 8)
 
 
-def threads() -> int:
-    """Pieces of a batch solved at once: THREADS when set, else one per CPU core this process may use on a CPU, 1 on
-    an accelerator (which runs a whole piece in parallel already)."""
-    if THREADS:
-        return THREADS
-    if on_accelerator():
-        return 1
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-
-
 def _solve_pieces(call, n: int) -> list:
-    """[device_get(call(a, b, m)) for each piece (a, b, m) of n presses], threads() pieces at a time."""
-    pieces = list(_pieces(n))
-    solve = lambda piece: jax.device_get(call(*piece))  # noqa: E731
-    k = min(threads(), len(pieces))
-    if k <= 1:
-        return [solve(piece) for piece in pieces]
-    with ThreadPoolExecutor(k) as pool:
-        return list(pool.map(solve, pieces))
+    """[device_get(call(a, b, m)) for each piece (a, b, m) of n presses], in order, from this thread."""
+    return [jax.device_get(call(*piece)) for piece in _pieces(n)]
 
 
 def use_disk_cache() -> Path | None:
@@ -417,9 +400,6 @@ def stick(held: np.ndarray, force: np.ndarray, layer: Layer, depths=None, tol: f
     held, force = np.asarray(held, bool), np.asarray(force, np.float32)
     depths = np.zeros(len(held)) if depths is None else np.asarray(depths, np.float64)
     groups = [(0, np.arange(len(held)))] if windows is None else _groups(windows)
-    for side, idx in groups:  # each grid's and depth's kernels built once, before the threads read them
-        for d in np.unique(depths[idx]):
-            _hold_kernels(layer, side, [d])
     solved: list = [None] * len(held)  # each press's traction: (on its window, the window) or (the grid, None)
     iterations = np.empty(len(held), np.int32)
     run = _traction_program(float(layer.dx) ** 2, float(tol), int(max_iter))
