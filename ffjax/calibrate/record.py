@@ -39,25 +39,22 @@ import numpy as np
 from ffjax import cli
 from ffjax.data.csv_source import CSV_NAME
 from ffjax.data.images import BACKGROUND_NAME, write_rgb
+from ffjax.data.validate import NUMBER, plain_number
 from ffjax.files import atomic_write_text, folder_lock
 
 G = 9.81
-_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 
 
 def parse_force(text: str) -> np.ndarray:
     """'2.5' -> (0, 0, 2.5) N; '200g' / '0.2 kg' -> (0, 0, m * 9.81); '0.1 -0.2 3' -> (0.1, -0.2, 3)."""
     s = text.strip().lower().replace(",", " ")
-    m = re.fullmatch(rf"({_NUM})\s*(g|kg)", s)
+    m = re.fullmatch(rf"({NUMBER})\s*(g|kg)", s)
     if m:
         mass = float(m.group(1)) * (1e-3 if m.group(2) == "g" else 1.0)
         return np.array([0.0, 0.0, mass * G], np.float32)
-    parts = s.removesuffix("n").split()
-    try:
-        values = [float(p) for p in parts]
-    except ValueError:
-        raise ValueError(f"cannot read a force from {text!r}: type Fz in N, a mass like 200g, or 'fx fy fz'") \
-            from None
+    values = [plain_number(p) for p in s.removesuffix("n").split()]  # float() would read "1_0" as 10, take "nan"
+    if None in values:
+        raise ValueError(f"cannot read a force from {text!r}: type Fz in N, a mass like 200g, or 'fx fy fz'")
     if len(values) == 1:
         return np.array([0.0, 0.0, values[0]], np.float32)
     if len(values) == 3:
@@ -177,7 +174,7 @@ def serial_reader(port: str, baud: int = 9600, query: str | None = None, timeout
         if query:
             dev.write((query + "\r\n").encode())
         line = dev.readline().decode(errors="replace")
-        m = re.search(_NUM, line)
+        m = re.search(NUMBER, line)
         if not m:
             raise ValueError(f"no number in the gauge's reply {line!r}")
         return m.group(0)
@@ -189,20 +186,23 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m ffjax.calibrate.record", description=__doc__.splitlines()[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog="\n".join(__doc__.splitlines()[1:]))
-    p.add_argument("--camera", type=int, required=True, help="video device index of the sensor")
+    p.add_argument("--camera", type=cli.integer(0), required=True,
+                   help="video device index of the sensor, 0 for the first")
     p.add_argument("--out", required=True, help="output folder (data.csv, tactile/, background.png)")
-    p.add_argument("--per-press", type=int, default=5, help="frames saved per press (default 5)")
-    p.add_argument("--warmup", type=int, default=30, help="frames dropped before the background")
-    p.add_argument("--bg-frames", type=int, default=10, help="frames averaged into the background")
-    p.add_argument("--resize", default=None, help="HxW: resize camera frames (match your checkpoint)")
+    p.add_argument("--per-press", type=cli.integer(1), default=5, help="frames saved per press (default 5)")
+    p.add_argument("--warmup", type=cli.integer(0, "0: none"), default=30,
+                   help="frames dropped before the background")
+    p.add_argument("--bg-frames", type=cli.integer(1), default=10, help="frames averaged into the background")
+    p.add_argument("--resize", type=cli.frame_size, default=None,
+                   help="HxW: resize camera frames (match your checkpoint)")
     p.add_argument("--serial", default=None, help="serial port of a force gauge (needs pyserial)")
-    p.add_argument("--baud", type=int, default=9600)
+    p.add_argument("--baud", type=cli.integer(1), default=9600)
     p.add_argument("--serial-query", default=None, help="text sent to the gauge before each reading")
     a = p.parse_args(argv)
     cli.check_out(p, a.out)  # before the camera: a typo in --out costs no warmup
     frames = camera_frames(a.camera)
     if a.resize:
-        h, w = (int(v) for v in a.resize.lower().split("x"))
+        h, w = a.resize
         frames = (cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames)
     if a.serial:
         gauge = serial_reader(a.serial, a.baud, a.serial_query)

@@ -12,6 +12,7 @@ from ffjax.data.images import BACKGROUND_NAME, load_background, read_rgb
 from ffjax.data.validate import (
     check_depth_values,
     depth_problem,
+    file_problem,
     image_problem,
     parse_ft_cell,
     png_size,
@@ -83,8 +84,9 @@ class CsvSource:
 
     def _read(self) -> tuple[list[str], list[dict], list[int]]:
         """Header, rows (cells stripped; None marks a missing cell, key None extra ones), line numbers."""
-        if not self.csv_path.is_file():
-            raise DataError(f"missing CSV: {self.csv_path}")
+        why = file_problem(self.csv_path, "CSV")
+        if why:
+            raise DataError(why)
         rows, lines = [], []
         try:
             with open(self.csv_path, newline="", encoding="utf-8-sig") as f:
@@ -185,10 +187,11 @@ class CsvSource:
         h, w = image.shape[:2]
         if self.has_depth and self.depth_paths[i]:
             dpath = self._resolve(self.depth_paths[i])
+            why = file_problem(dpath, "depth file")
+            if why:
+                raise DataError(f"{where}: {why}")
             try:
                 depth = np.load(dpath, allow_pickle=False)
-            except FileNotFoundError:
-                raise DataError(f"{where}: missing depth file {dpath}") from None
             except Exception as e:
                 raise DataError(f"{where}: unreadable depth file {dpath} ({e})") from None
             depth = np.squeeze(depth)

@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ffjax.data.validate import file_problem
 from ffjax.errors import DataError
 from ffjax.files import atomic_write_bytes
 
@@ -17,12 +18,14 @@ BACKGROUND_NAME = "background.png"
 
 def read_rgb(path: str | os.PathLike, what: str = "image") -> np.ndarray:
     """Read a colour image as RGB uint8 (an alpha channel is dropped). A missing, unreadable or truncated
-    file raises DataError, and so do images a colour sensor never writes: more than 8 bits per channel
-    (decoding would silently drop the low bits: 12-bit data in 16 bits would read as a near-black frame) and
-    grayscale (it would become three equal channels, a colour the model never saw)."""
+    file (or a directory, a dangling or looping symlink) raises DataError, and so do images a colour sensor
+    never writes: more than 8 bits per channel (decoding would silently drop the low bits: 12-bit data in 16
+    bits would read as a near-black frame) and grayscale (it would become three equal channels, a colour the
+    model never saw)."""
     path = Path(path)
-    if not path.is_file():
-        raise DataError(f"missing {what}: {path}")
+    why = file_problem(path, what)
+    if why:
+        raise DataError(why)
     raw = np.fromfile(path, dtype=np.uint8)
     img = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED) if raw.size else None
     if img is None:
@@ -46,12 +49,13 @@ def write_rgb(path: str | os.PathLike, image: np.ndarray) -> None:
 
 def load_background(background, default_path: Path | None, where: str) -> np.ndarray | None:
     """The no-contact frame: `background` (an RGB array or an image path), else the image at `default_path`
-    if there is one, else None; refused unless uint8 HxWx3 (`where` names the split in the error)."""
+    if there is one (anything by that name: a directory or a broken link there is refused, not passed over), else
+    None; refused unless uint8 HxWx3 (`where` names the split in the error)."""
     if isinstance(background, np.ndarray):
         bg = background
     elif background is not None:
         bg = read_rgb(background, "background")
-    elif default_path is not None and default_path.is_file():
+    elif default_path is not None and os.path.lexists(default_path):
         bg = read_rgb(default_path, "background")
     else:
         return None

@@ -15,7 +15,13 @@ import numpy as np
 
 from ffjax.data.csv_source import CSV_NAME, CsvSource
 from ffjax.data.shards import SHARD_GLOB, ShardSource
+from ffjax.data.validate import file_problem
 from ffjax.errors import DataError
+
+
+def is_csv_path(path: str | os.PathLike) -> bool:
+    """Whether `path` names a CSV file: a .csv extension in any case (DATA.CSV, as Windows tools write it)."""
+    return Path(path).suffix.lower() == ".csv"
 
 
 def open_split(path: str | os.PathLike, background: str | os.PathLike | np.ndarray | None = None, *,
@@ -31,9 +37,10 @@ def open_split(path: str | os.PathLike, background: str | os.PathLike | np.ndarr
     if path.is_dir():
         if any(path.glob(SHARD_GLOB)) or (path / "split.json").is_file():
             return ShardSource(path, background=background, validate=validate)
-        if (path / CSV_NAME).is_file():
+        if os.path.lexists(path / CSV_NAME):  # CsvSource says what is wrong with one that is not a file
             return CsvSource(path / CSV_NAME, background=background, validate=validate, skip_bad_rows=skip_bad_rows)
-        raise DataError(f"{path}: no {SHARD_GLOB} shards and no {CSV_NAME}; not a split")
-    if path.suffix.lower() == ".csv":
+        raise DataError(f"{path}: no {SHARD_GLOB} shards and no {CSV_NAME}; not a split (give a shard folder, a "
+                        f"folder holding {CSV_NAME}, or the .csv file itself)")
+    if is_csv_path(path):
         return CsvSource(path, background=background, validate=validate, skip_bad_rows=skip_bad_rows)
-    raise DataError(f"{path}: not a split directory or a .csv file")
+    raise DataError(file_problem(path, "split") or f"{path}: not a split directory or a .csv file")

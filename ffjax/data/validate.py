@@ -8,9 +8,12 @@ the same file and row, when the record is read. Every problem is reported as "FI
 
 from __future__ import annotations
 
+import errno
 import logging
 import math
 import os
+import re
+import stat
 import struct
 from pathlib import Path
 
@@ -28,21 +31,39 @@ FT_NAMES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 # measure up to ~100-200 N. A label beyond it is a unit or parsing error (a row of 1e30 trained to "MAE 7e28 N").
 FORCE_LIMIT_N = 200.0
 SHOW = 5  # reasons quoted in a bad-rows error or skip warning
+# A number as the release writes them ("0.017000", "-0.000100") or as %g does ("1.5e-05"). float() takes more: "1_0"
+# (a typo, read as 10), "nan", "infinity", non-ASCII digits; a label must be exactly what was measured.
+NUMBER = r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?"
+
+
+def plain_number(text: str) -> float | None:
+    """`text` as a float when it is a plain decimal or scientific number (NUMBER), else None."""
+    return float(text) if re.fullmatch(NUMBER, text) else None
 
 
 def parse_ft_cell(cell: str) -> tuple[np.ndarray | None, str | None]:
-    """(force (3,) float32, None) for a good FT cell ("Fx Fy Fz Tx Ty Tz" or "Fx Fy Fz"), else (None, why)."""
-    parts = str(cell).replace(",", " ").split()
+    """(force (3,) float32, None) for a good FT cell ("Fx Fy Fz Tx Ty Tz" or "Fx Fy Fz"; values separated by
+    spaces or by commas), else (None, why)."""
+    text = str(cell).strip()
+    # commas separate values only where they are the separator: "0,5 1,2 3,0" (decimal commas) must not become
+    # six labels 0 5 1 2 3 0
+    parts = [p.strip() for p in text.split(",")] if "," in text else text.split()
+    if any(len(p.split()) > 1 for p in parts):
+        return None, (f"FT cell {cell!r} separates its values by commas and by spaces (decimal commas? write 0.5, "
+                      "not 0,5)")
     if len(parts) not in (3, 6):
         return None, f"FT cell {cell!r} has {len(parts)} values, expected 6 (Fx Fy Fz Tx Ty Tz) or 3"
     values = []
     for name, p in zip(FT_NAMES, parts):
-        try:
-            v = float(p)
-        except ValueError:
-            return None, f"FT cell {cell!r}: {name} {p!r} is not a number"
-        if not math.isfinite(v):
-            return None, f"FT cell {cell!r}: {name} is {'NaN' if math.isnan(v) else 'inf'}"
+        v = plain_number(p)
+        if v is None:
+            special = p.lower().lstrip("+-")
+            if special in ("nan", "inf", "infinity"):
+                return None, f"FT cell {cell!r}: {name} is {'NaN' if special == 'nan' else 'inf'}"
+            return None, (f"FT cell {cell!r}: {name} {p!r} is not a number (write plain decimals with a '.' like "
+                          "0.017, -2 or 1.5e-3, separated by spaces)")
+        if not math.isfinite(v):  # 1e999
+            return None, f"FT cell {cell!r}: {name} {p!r} is inf"
         values.append(v)
     worst = max(range(3), key=lambda k: abs(values[k]))
     if abs(values[worst]) > FORCE_LIMIT_N:
@@ -64,13 +85,34 @@ def png_size(path: Path) -> tuple[int, int] | None:
     return h, w
 
 
+def file_problem(path: Path, what: str) -> str | None:
+    """Why `path` is not a regular file to read, said as what it is (a directory, a dangling symlink, a symlink
+    loop, a pipe); None when it is one."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        if path.is_symlink():
+            return f"{what} {path} is a symlink to {os.path.realpath(path)}, which does not exist"
+        return f"missing {what} {path}"
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            return f"{what} {path} is a symlink loop (its links lead back to themselves)"
+        return f"unreadable {what} {path} ({e.strerror})"
+    if stat.S_ISDIR(st.st_mode):
+        return f"{what} {path} is a directory, not a file"
+    if not stat.S_ISREG(st.st_mode):  # reading a FIFO would block forever
+        return f"{what} {path} is not a regular file (a pipe, socket or device)"
+    return None
+
+
 def image_problem(path: Path, want_hw: tuple[int, int] | None, what: str = "tactile image") -> str | None:
     """Why `path` cannot be a (want_hw) frame, from its header and trailer; None when it looks fine.
 
     PNGs get their size and completeness checked; other formats only their existence (they are
     decoded, and checked, when read)."""
-    if not path.is_file():
-        return f"missing {what} {path}"
+    why = file_problem(path, what)
+    if why:
+        return why
     size = path.stat().st_size
     if size == 0:
         return f"empty {what} {path}"
@@ -99,8 +141,9 @@ def image_problem(path: Path, want_hw: tuple[int, int] | None, what: str = "tact
 
 def depth_problem(path: Path, want_hw: tuple[int, int] | None) -> str | None:
     """Why `path` cannot be a depth map (.npy, mm) of size want_hw; reads only the header (memory-mapped)."""
-    if not path.is_file():
-        return f"missing depth file {path}"
+    why = file_problem(path, "depth file")
+    if why:
+        return why
     try:
         d = np.load(path, mmap_mode="r", allow_pickle=False)
     except Exception as e:  # short file, bad header, pickled object array

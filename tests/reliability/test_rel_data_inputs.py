@@ -53,11 +53,28 @@ def test_missing_columns_and_empty_split(split):
     ("1 2 3 4", r"has 4 values"),
     ("1 x 3", r"Fy 'x' is not a number"),
     ("", r"has 0 values"),
+    ("0 0 1_0 0 0 0", r"Fz '1_0' is not a number \(write plain decimals"),  # float() read it as 10 N
+    ("1 2 3 0 0 Infinity", r"Tz is inf"),
+    ("0x1 2 3", r"Fx '0x1' is not a number"),
+    ("\uff11 2 3", r"Fx '\uff11' is not a number"),  # a full-width digit, which float() takes
+    ("0,5 1,2 3,0", r"by commas and by spaces \(decimal commas\? write 0\.5"),  # not the labels 0 5 1 2 3 0
+    ("0,1 0,2 3", r"by commas and by spaces"),
+    ("1 2 1e999", r"Fz '1e999' is inf"),
 ])
 def test_bad_ft_cell_names_line(split, cell, why):
-    set_row(split, 3, f"tactile/003.png,depth/003.npy,{cell}")
+    set_row(split, 3, f'tactile/003.png,depth/003.npy,"{cell}"')
     with pytest.raises(data.DataError, match=rf"data\.csv row 3 \(line 5\): .*{why}"):
         data.open_split(split)
+
+
+@pytest.mark.parametrize("cell, force", [
+    ("0.002000 0.005000 0.017000 -0.000100 -0.000000 0.000400", [0.002, 0.005, 0.017]),  # the release's cells
+    ("1.5e-05 -2 +3 0 0 0", [1.5e-5, -2, 3]),  # csv_layout's %.9g, a sign
+    (".5, 1., 2E1", [0.5, 1, 20]),
+])
+def test_good_ft_cells_parse(split, cell, force):
+    set_row(split, 3, f'tactile/003.png,depth/003.npy,"{cell}"')
+    np.testing.assert_allclose(data.open_split(split).forces[3], force, rtol=1e-6)
 
 
 @pytest.mark.parametrize("row, why", [
@@ -134,6 +151,52 @@ def test_bad_files_fail_on_open_when_validating(split, damage, why):
     data.open_split(split)  # cell checks only: opens, the row fails when read
     with pytest.raises(data.DataError, match=rf"data\.csv row 2 \(line 4\): .*{why}"):
         data.open_split(split, validate=True)
+
+
+def _loop(path):
+    path.unlink()
+    path.symlink_to(path.name)  # a link to itself
+
+
+def _dangling(path):
+    path.unlink()
+    path.symlink_to("gone.png")
+
+
+def _directory(path):
+    path.unlink()
+    path.mkdir()
+
+
+@pytest.mark.parametrize("fault, why", [
+    (_directory, r"tactile image \S*002\.png is a directory, not a file"),
+    (_loop, r"tactile image \S*002\.png is a symlink loop"),
+    (_dangling, r"tactile image \S*002\.png is a symlink to \S*tactile/gone\.png, which does not exist"),
+])
+def test_a_tactile_path_that_is_not_a_file_says_what_it_is(split, fault, why):
+    """Issue 61 (5): a directory or a looping symlink at a tactile path was reported as a missing image."""
+    fault(split.parent / "tactile/002.png")
+    with pytest.raises(data.DataError, match=rf"data\.csv row 2 \(line 4\): {why}"):
+        data.open_split(split, validate=True)
+    with pytest.raises(data.DataError, match=rf"data\.csv row 2 \(line 4\): {why}"):
+        data.open_split(split)[2]  # unvalidated: found when the row is read
+
+
+def test_other_paths_that_are_not_files_say_what_they_are(split):
+    folder = split.parent
+    _directory(folder / "depth/002.npy")
+    with pytest.raises(data.DataError, match=r"row 2 \(line 4\): depth file \S*002\.npy is a directory, not a file"):
+        data.open_split(split, validate=True)
+    with pytest.raises(data.DataError, match=r"row 2 \(line 4\): depth file \S*002\.npy is a directory"):
+        data.open_split(split)[2]
+    _loop(folder / "background.png")  # not passed over as "no background"
+    with pytest.raises(data.DataError, match=r"background \S*background\.png is a symlink loop"):
+        data.open_split(split)
+    _directory(split)  # a folder whose data.csv is a folder: not "not a split"
+    with pytest.raises(data.DataError, match=r"CSV \S*data\.csv is a directory, not a file"):
+        data.open_split(folder)
+    with pytest.raises(data.DataError, match=r"missing split \S*nowhere"):
+        data.open_split(folder / "nowhere")
 
 
 def test_an_alpha_channel_is_dropped(tmp_path):
@@ -256,6 +319,39 @@ def test_cli_refuses_bad_csv_and_skips_with_flag(split, tmp_path, fake_train, ca
         assert cli.main(args + ["--skip-bad-rows"]) == 0
     assert "skipped 1 of 6 rows" in caplog.text
     assert len(fake_train["data"]["train"]) == 5 and len(fake_train["data"]["val"]) == 3
+
+
+@pytest.mark.parametrize("fault", [_directory, _loop])
+def test_cli_names_a_tactile_path_that_is_not_a_file(split, tmp_path, fake_train, capsys, fault):
+    """Issue 61 (5) from the command line: one error line naming the row, before any work or write."""
+    fault(split.parent / "tactile/002.png")
+    out = tmp_path / "run"
+    assert cli.main(["--preset", "smoke", "--data", str(split), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) >= 1 and err[0].startswith("error: ") and "row 2 (line 4): tactile image" in err[0]
+    assert ("is a directory" if fault is _directory else "is a symlink loop") in err[0]
+    assert "data" not in fake_train and not out.exists()
+
+
+def test_cli_takes_an_upper_case_csv_extension(split, tmp_path, fake_train):
+    """Issue 61 (7): --data .../DATA.CSV was taken for a dataset folder: 'not a split directory or a .csv file'."""
+    upper = split.rename(split.with_name("DATA.CSV"))
+    val = make_csv(tmp_path / "val", n=3, seed=1)
+    val = val.rename(val.with_name("Val.Csv"))
+    args = ["--preset", "smoke", "--data", str(upper), "--val", str(val), "--out", str(tmp_path / "run"), "--quiet"]
+    assert cli.main(args) == 0
+    assert len(fake_train["data"]["train"]) == 6 and len(fake_train["data"]["val"]) == 3
+    assert data.sources.is_csv_path("a/b.CSV") and not data.sources.is_csv_path("a/csv")
+
+
+def test_a_typed_calibration_force_is_parsed_strictly():
+    """Issue 61 (6), its sibling: a typed '1_0' was recorded as Fz = 10 N, 'nan' as a NaN label."""
+    from ffjax.calibrate import record
+
+    np.testing.assert_allclose(record.parse_force("1.5e-1 0 2"), [0.15, 0, 2])
+    for typo in ("1_0", "nan", "inf", "1_0g"):
+        with pytest.raises(ValueError, match="cannot read a force"):
+            record.parse_force(typo)
 
 
 # --- simulated shard splits
