@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import configs
-from ffjax import convert, models, registry
+from ffjax import convert, inference, models, registry, store
 from ffjax.convert import __main__ as cli
 from ffjax.convert import from_dinov2, from_release, mapping, reader
 from ffjax.models import vit
@@ -135,10 +135,9 @@ def test_release_checkpoint_parity_through_models_build():
     ref = _ref("feelanyforce_tiny.npz")
     for channel in (0, 1, 2):  # the release decoder's 3 channels, one at a time
         cfg, variables = convert.feelanyforce(FIX / "feelanyforce_tiny.pth.tar", heads=2, depth_channel=channel)
-        assert cfg["decoder"] == {"kind": "paper", "channels": (16, 16, 8, 8)}
+        assert cfg["decoder"]["kind"] == "paper" and cfg["decoder"]["channels"] == (16, 16, 8, 8)
         assert cfg["regressor"]["widths"] == (32, 16, 16, 8) and cfg["vit"]["pos_grid"] == 5
-        model_cfg = converted.model_config(configs.get("paper")["model"], cfg, "feelanyforce")
-        out = models.build(model_cfg, registry.get("dino_rd"), 32).apply(variables, jnp.asarray(ref["x"]))
+        out = models.build(cfg, registry.get("dino_rd"), 32).apply(variables, jnp.asarray(ref["x"]))
         _close(out["depth"], ref["depth"][:, channel])
     _close(out["feature"], ref["feature"])
     _close(out["force"], ref["force"])
@@ -146,7 +145,38 @@ def test_release_checkpoint_parity_through_models_build():
 
 def test_release_without_decoder():
     cfg, variables = convert.feelanyforce(FIX / "feelanyforce_tiny.pth.tar", heads=2, with_decoder=False)
-    assert "decoder" not in cfg and set(variables["params"]) == {"backbone", "regressor"}
+    assert set(variables["params"]) == {"backbone", "regressor"}
+    out = models.build(cfg, registry.get("dino_r"), 32).apply(variables, jnp.zeros((1, 32, 32, 3)))
+    assert out["force"].shape == (1, 3)
+
+
+def test_the_documented_python_path_builds_the_model_the_cli_loads(tmp_path):
+    """Issue 61 (17): `cfg, variables = convert.feelanyforce(path)` then `models.build(cfg, registry.get("dino_rd"),
+    224)`, as its docstring says, raised KeyError: 'fast' (the config held only the weights' sections). The same
+    lines on the tiny release (heads 2, crop size 32) now build the model `python -m ffjax.convert` +
+    `inference.load` run, with the same outputs."""
+    path, size = FIX / "feelanyforce_tiny.pth.tar", 32
+    cfg, variables = convert.feelanyforce(path, heads=2)
+    model = models.build(cfg, registry.get("dino_rd"), size)
+    images = jnp.asarray(_ref("feelanyforce_tiny.npz")["x"])
+    out = model.apply(variables, images)
+    assert cli.main(["feelanyforce", str(path), "--out", str(tmp_path / "release"), "--heads", "2"]) == 0
+    pred = inference.load(tmp_path / "release")
+    assert pred.trained.input_size == size and pred.trained.cfg["model"] == cfg
+    ref = pred.model.apply(pred.variables, images)
+    for key in ("force", "depth", "feature"):
+        np.testing.assert_array_equal(np.asarray(out[key]), np.asarray(ref[key]))
+
+
+def test_a_converted_folder_written_before_the_decoder_had_fast_builds():
+    """The legacy converted folder (tests/fixtures/legacy, written before decoder.fast existed) builds the same
+    complete config the Python path gives."""
+    with pytest.warns(store.UnverifiedWarning):  # it records no digests (test_rel_digests)
+        sections, _ = convert.load(FIX / "legacy" / "converted")
+    assert "fast" not in sections["decoder"]
+    cfg = converted.release_model(sections)
+    assert cfg["decoder"]["fast"] is configs.get("paper")["model"]["decoder"]["fast"]
+    models.build(cfg, registry.get("dino_rd"), 32)
 
 
 # ------------------------------------------------------------------------------------- error reporting
@@ -192,7 +222,7 @@ def test_cli_writes_loadable_output(tmp_path, capsys):
     assert "regressor" in capsys.readouterr().out
     cfg, variables = convert.load(out)
     ref_cfg, ref_vars = convert.feelanyforce(FIX / "feelanyforce_tiny.pth.tar", heads=2)
-    assert cfg == ref_cfg
+    assert converted.release_model(cfg) == ref_cfg  # convert.json holds the sections, feelanyforce the whole
     np.testing.assert_array_equal(variables["params"]["decoder"]["fc"]["v"], ref_vars["params"]["decoder"]["fc"]["v"])
     assert converted.read_meta(out)["input_size"] == 32
 
@@ -213,8 +243,7 @@ def test_release_parity_paper_scale():
     ref = {k: v.astype(np.float32) for k, v in np.load(root / "ref.npz").items()}
     cfg, variables = convert.feelanyforce(root / "checkpoint_v1.pth.tar")
     assert cfg["vit"]["heads"] == 12 and cfg["vit"]["pos_grid"] == 37
-    model_cfg = converted.model_config(configs.get("paper")["model"], cfg, "feelanyforce")
-    out = models.build(model_cfg, registry.get("dino_rd"), 224).apply(variables, jnp.asarray(ref["x"]))
+    out = models.build(cfg, registry.get("dino_rd"), 224).apply(variables, jnp.asarray(ref["x"]))
     _close(out["feature"], ref["feature"])
     _close(out["force"], ref["force"])
     _close(out["depth"], ref["depth"][:, 0])

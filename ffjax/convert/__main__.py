@@ -40,6 +40,8 @@ def main(argv=None) -> int:
     p.add_argument("--no-decoder", action="store_true", help="feelanyforce: drop the depth decoder")
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
     a = p.parse_args(argv)
+    if a.heads is not None and a.heads < 1:
+        p.error(f"--heads {a.heads}: must be at least 1 (the ViT's attention heads, a divisor of its width)")
     try:
         check_output(a.out, reads=[a.input], force=a.force)  # before reading: a refused --out costs nothing
         return _run(a)
@@ -57,15 +59,7 @@ def _run(a: argparse.Namespace) -> int:
         model_cfg = {"resnet": cfg}
         variables = {"params": {"backbone": params}, "batch_stats": {"backbone": stats}}
     else:
-        obj = reader.load(a.input)
-        model_cfg, variables, size = from_release.convert_state(
-            reader.state_dict(obj, a.input),
-            from_release.release_config(obj),
-            a.heads,
-            a.depth_channel,
-            not a.no_decoder,
-            a.input,
-        )
+        model_cfg, variables, size = from_release.convert_file(a.input, a.heads, a.depth_channel, not a.no_decoder)
         info = {
             "input_size": size,
             "depth_channel": a.depth_channel,

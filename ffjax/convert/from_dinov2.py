@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..models import vit as vit_lib
-from . import mapping, reader
+from . import kinds, mapping, reader
 from .mapping import conv, identity, linear
 
 _B = r"blocks\.(?:\d+\.)?(\d+)\."  # "blocks.N." or the FSDP-chunked "blocks.C.N."
@@ -45,6 +45,7 @@ HUB_HEADS = {"vits14": 6, "vitb14": 12, "vitl14": 16, "vitg14": 24}
 
 def infer_config(state: dict[str, np.ndarray], heads: int | None = None, source: str = "") -> dict:
     """cfg["model"]["vit"] read off a DINOv2 state dict's shapes (heads: given, or dim // 64)."""
+    kinds.check(state, "dinov2", source)
     need = ("patch_embed.proj.weight", "pos_embed", "blocks.0.mlp.fc1.weight")
     missing = [k for k in need if k not in state]
     if missing:
@@ -55,10 +56,14 @@ def infer_config(state: dict[str, np.ndarray], heads: int | None = None, source:
     if grid * grid != n:
         raise mapping.ConversionError(source, {"pos_embed is not a square grid (+1 cls)": [str(n)]})
     depth = 1 + max(int(m.group(1)) for k in state if (m := re.match(_B, k)))
+    valid = ", ".join(str(h) for h in range(1, dim + 1) if dim % h == 0)
     if heads is None:
         if dim % 64:
-            raise ValueError(f"{source}: embed dim {dim} is not a multiple of 64; pass heads= (CLI: --heads)")
+            raise ValueError(f"{source}: embed dim {dim} is not a multiple of 64, so its attention heads are not "
+                             f"known; pass heads= (CLI: --heads), one that divides {dim}: {valid}")
         heads = dim // 64
+    if heads < 1 or dim % heads:
+        raise ValueError(f"{source}: --heads {heads} (heads=) must divide the ViT width {dim}: use one of {valid}")
     return {
         "dim": int(dim),
         "depth": int(depth),

@@ -28,7 +28,8 @@ import numpy as np
 from ..models import heads as heads_lib
 from ..models import model as model_lib
 from ..models import vit as vit_lib
-from . import from_dinov2, mapping, reader
+from ..store import converted
+from . import from_dinov2, kinds, mapping, reader
 from .mapping import conv, identity, linear
 
 BACKBONE_PREFIXES = ("tactile_backbone.", "backbone.", "encoder.")
@@ -95,11 +96,13 @@ def _backbone_prefix(state, source) -> str:
     for p in BACKBONE_PREFIXES:
         if p + "patch_embed.proj.weight" in state:
             return p
-    raise mapping.ConversionError(source, {"no DINOv2 backbone under any of these prefixes": list(BACKBONE_PREFIXES)})
+    raise mapping.ConversionError(source, {"its DINOv2 backbone is under none of the release's prefixes":
+                                           [", ".join(BACKBONE_PREFIXES)]})
 
 
 def infer_config(state, config: dict, heads: int | None, source: str) -> tuple[dict, int, str]:
-    """(cfg["model"], input_size, backbone prefix) read off the release state dict and its saved args."""
+    """(cfg["model"] sections, input_size, backbone prefix) read off the release state dict and its saved args."""
+    kinds.check(state, "feelanyforce", source)
     prefix = _backbone_prefix(state, source)
     backbone_state, _ = mapping.fold_prefix(state, prefix)
     if heads is None:
@@ -161,19 +164,31 @@ def release_config(obj) -> dict:
     return config if isinstance(config, dict) else {}
 
 
+def convert_file(
+    path, heads: int | None = None, depth_channel: int = 0, with_decoder: bool = True
+) -> tuple[dict, dict, int]:
+    """The release checkpoint file -> (the cfg["model"] sections its weights decide, variables, input_size): what
+    `python -m ffjax.convert feelanyforce` saves (ffjax.store.converted)."""
+    obj = reader.load(path)
+    return convert_state(
+        reader.state_dict(obj, path), release_config(obj), heads, depth_channel, with_decoder, str(path)
+    )
+
+
 def feelanyforce(
     path, heads: int | None = None, depth_channel: int = 0, with_decoder: bool = True
 ) -> tuple[dict, dict]:
-    """Convert the FeelAnyForce release checkpoint -> (cfg["model"], variables).
+    """Convert the FeelAnyForce release checkpoint -> (cfg["model"], variables):
 
-    variables = {"params": {"backbone", "regressor", ["decoder"]}} for `models.build(cfg, registry.get("dino_rd"), S)`
-    (S = the release's crop_size, 224; the decoder kind is "paper"). heads: ViT heads (default from the
-    saved args' tactile_model, e.g. dinov2_vitb14 -> 12, else dim // 64). depth_channel: which of the
-    release decoder's 3 output channels becomes our single depth channel. with_decoder=False drops it
-    (for methods without a depth head).
+        cfg, variables = convert.feelanyforce("checkpoint_v1.pth.tar")
+        model = models.build(cfg, registry.get("dino_rd"), 224)     # 224: the release's crop_size
+        out = model.apply(variables, images)                         # images (B, 224, 224, 3), normalized
+
+    cfg is complete (the paper preset's model section with the weights' sizes and the release's regressor head,
+    as `ffjax.store.load` builds a converted folder); variables = {"params": {"backbone", "regressor",
+    ["decoder"]}}. heads: ViT heads (default from the saved args' tactile_model, e.g. dinov2_vitb14 -> 12, else
+    dim // 64). depth_channel: which of the release decoder's 3 output channels becomes our single depth channel.
+    with_decoder=False drops it (for methods without a depth head: registry.get("dino_r")).
     """
-    obj = reader.load(path)
-    cfg, variables, _ = convert_state(
-        reader.state_dict(obj, path), release_config(obj), heads, depth_channel, with_decoder, str(path)
-    )
-    return cfg, variables
+    sections, variables, _ = convert_file(path, heads, depth_channel, with_decoder)
+    return converted.release_model(sections), variables

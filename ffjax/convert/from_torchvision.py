@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..models import resnet as resnet_lib
-from . import mapping, reader
+from . import kinds, mapping, reader
 from .mapping import conv, identity
 
 _BLOCK = r"layer(\d)\.(\d+)\."
@@ -42,6 +42,7 @@ TABLE: list[mapping.Rule] = [
 
 def infer_config(state: dict[str, np.ndarray], source: str = "") -> dict:
     """cfg["model"]["resnet"] read off the state dict: widths per stage and blocks per stage."""
+    kinds.check(state, "resnet18", source)
     blocks: dict[int, int] = {}
     widths: dict[int, int] = {}
     for k, v in state.items():

@@ -33,15 +33,21 @@ def conv(x: np.ndarray) -> np.ndarray:
 
 
 class ConversionError(ValueError):
-    """Every mapping problem of one conversion, listed at once."""
+    """Every mapping problem of one conversion, listed at once ({kind of problem: [items]}); a single problem
+    (a file that is another model's, a config that cannot be read off it) is one line."""
 
     def __init__(self, source: str, problems: dict[str, list[str]]):
         self.source, self.problems = source, problems
+        each = [(kind, item) for kind, items in problems.items() for item in items]
+        if len(each) == 1:
+            super().__init__(f"cannot convert {source}: {each[0][0]}: {each[0][1]}")
+            return
         lines = [f"cannot convert {source}:"]
         for kind, items in problems.items():
-            if items:
-                lines.append(f"  {kind} ({len(items)}):")
-                lines.extend(f"    {item}" for item in items)
+            if not items:
+                continue
+            lines.append(f"  {kind} ({len(items)}):")
+            lines.extend(f"    {item}" for item in items)
         super().__init__("\n".join(lines))
 
 

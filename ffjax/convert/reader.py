@@ -53,6 +53,11 @@ _TORCH_DTYPES = {
 }
 
 
+class MissingExtraError(ModuleNotFoundError, RuntimeError):
+    """An optional dependency is not installed. A ModuleNotFoundError to Python; a RuntimeError too, so every
+    command line tool (ffjax.cli) prints it as one `error:` line (exit 1) instead of a traceback."""
+
+
 class _ViewError(ValueError):
     """A tensor's size, stride or offset does not fit its storage or file (state_dict adds file and name)."""
 
@@ -274,8 +279,12 @@ def load(path) -> object:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
     if path.suffix == ".safetensors":
-        from safetensors.numpy import load_file  # the optional extra ffjax[weights]
-
+        try:
+            from safetensors.numpy import load_file
+        except ModuleNotFoundError:
+            raise MissingExtraError(f"{path}: reading .safetensors needs the optional extra ffjax[weights]: "
+                                    "pip install -e \".[weights]\" (or pip install safetensors)",
+                                    name="safetensors") from None
         try:
             return load_file(str(path))
         except Exception as e:  # safetensors raises its own SafetensorError on truncated headers/data

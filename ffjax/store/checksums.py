@@ -1,7 +1,10 @@
 """Per-tensor checksums of a pytree, computed on the device: saved with every checkpoint and compared after
-restoring, so a flipped byte in a data file is an error naming the tensor instead of a model that predicts NaN."""
+restoring, so a flipped byte in a data file is an error naming the tensor instead of a model that predicts NaN.
+And the one warning for a file that carries no digest at all (`warn_unverified`)."""
 
 from __future__ import annotations
+
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -47,3 +50,17 @@ def verify_checksums(tree, saved: dict | None, path) -> None:
             else "its tensor list differs"
         raise CheckpointError(f"{path} is corrupt: {what} from the checksums saved with it (a disk or copy error "
                               "changed the files)")
+
+
+class UnverifiedWarning(UserWarning):
+    """A model file carries no digest (written before ffjax recorded one, or edited and the digest removed): it
+    loads, but an edit to it would change the forces unnoticed."""
+
+
+def warn_unverified(path, missing: list[str], what: str, how: str) -> None:
+    """Warn that `path` records none of the digests `missing`, so `what` ("the weights are") is not verified, and
+    `how` makes it verified again. Once per load: the loaders call it where the file is read."""
+    path = str(path).encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")  # a message is text
+    warnings.warn(f"{path} records no {' and no '.join(missing)} (written before ffjax recorded digests, or a digest "
+                  f"was deleted): {what} not verified, so an edit would go unnoticed. To make it verified again, "
+                  f"{how}", UnverifiedWarning, stacklevel=3)

@@ -6,7 +6,8 @@
 
 "sha256" is the digest of everything else in the file (canonical JSON), so an edit that would change the
 forces (the normalization statistics, the spec, the config) is refused, naming the file, instead of loading a
-different model. Files written before the digest existed carry none and load as they are.
+different model. Files written before the digest existed carry none: they load, with an UnverifiedWarning that
+says how to write them again with it.
 
 `read` checks a file and `describe` turns it into the config (upgraded to today's keys by configs.upgrade), the
 method and the statistics; nothing else in ffjax parses model.json.
@@ -23,10 +24,12 @@ from ffjax.data.stats import Stats
 from ffjax.errors import CheckpointError
 from ffjax.files import as_json, atomic_write_json, json_digest, read_json
 from ffjax.jsontree import retuple
+from ffjax.store.checksums import warn_unverified
 
 MODEL_JSON = "model.json"
 REQUIRED = ("method", "input_size", "stats", "cfg")
-DIGEST = "sha256"
+DIGEST, WEIGHTS_DIGEST = "sha256", "variables_sha256"  # a bundle's model.json also records its weights' digest
+BUNDLE_FORMAT = "ffjax.predictor/1"
 
 
 def info(cfg: dict, spec, stats, input_size: int, frame_size=None, background_stats: dict | None = None,
@@ -73,14 +76,29 @@ def read(folder) -> dict:
 
 
 def verify(content: dict, path) -> None:
-    """CheckpointError naming `path` when model.json's content no longer matches its recorded digest."""
+    """CheckpointError naming `path` when model.json's content no longer matches its recorded digest; an
+    UnverifiedWarning when it records none (written before model.json carried one)."""
     recorded = content.get(DIGEST)
-    if recorded is None:  # written before model.json carried a digest
+    if recorded is None:
+        _warn_unverified(content, Path(path))
         return
     if json_digest({k: v for k, v in content.items() if k != DIGEST}) != recorded:
         raise CheckpointError(f"{path} was changed after it was written (its content does not match the sha256 "
                               "recorded in it): the statistics, method or config in it may not be the ones the "
                               "weights were trained with. Restore the file from the run or bundle it came with")
+
+
+def _warn_unverified(content: dict, path: Path) -> None:
+    """The UnverifiedWarning of a model.json without its digest: a run's is written again by resuming the run,
+    a bundle's by saving the bundle again."""
+    bundle = content.get("format") == BUNDLE_FORMAT
+    missing = [DIGEST] + ([WEIGHTS_DIGEST] if bundle and not content.get(WEIGHTS_DIGEST) else [])
+    what = "the statistics, method and config in it" + (" and the weights beside it" if len(missing) > 1 else "")
+    folder = path.parent
+    how = (f"save the bundle again from an unedited copy (Python: store.save_bundle(NEW, store.load('{folder}')))"
+           if bundle else f"resume the run from an unedited copy (python -m ffjax.train --out {folder} --resume with "
+           "its preset, method and data: that writes model.json again with its digest)")
+    warn_unverified(path, missing, what + " are", how)
 
 
 @dataclasses.dataclass(frozen=True)

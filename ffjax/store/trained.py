@@ -9,7 +9,8 @@ Folders `load` reads (it tells them apart):
                  approximated from the paper). A `stats.json` (a data.Stats dict) beside it overrides them.
 
 Everything is verified: model.json's own digest (model_json), run checkpoints' per-tensor checksums, the
-bundle's and converted weights' sha256, every tensor's shape against the model the folder describes.
+bundle's and converted weights' sha256, every tensor's shape against the model the folder describes. A
+model.json or convert.json written before it recorded its digests loads with an UnverifiedWarning saying so.
 
 Expected frame size (H, W), the first that applies: the `frame_size` argument; "frame_size" in model.json
 (runs and bundles record it); "frame_size" in a `sensor.json` beside the weights; 240x320 (GelSight Mini) for
@@ -37,9 +38,8 @@ from ffjax.data.images import read_rgb
 from ffjax.errors import CheckpointError
 from ffjax.files import atomic_write_bytes, check_output, read_json, sha256_bytes
 from ffjax.store import checkpoints, converted, model_json
-from ffjax.store.model_json import MODEL_JSON
+from ffjax.store.model_json import BUNDLE_FORMAT, MODEL_JSON
 
-BUNDLE_FORMAT = "ffjax.predictor/1"
 CHANNELS = "RGB"
 VARIABLES, SENSOR_JSON, STATS_JSON = "variables.msgpack", "sensor.json", "stats.json"
 RELEASE_FRAME = (240, 320)
@@ -160,7 +160,7 @@ def _converted(folder: Path, frame_size) -> Trained:
                          "to start training (--init), then load the run")
     sections, variables = converted.load(folder)
     cfg = configs.get("paper")
-    cfg["model"] = converted.model_config(cfg["model"], sections, meta["kind"])
+    cfg["model"] = converted.release_model(sections)
     size = int(meta.get("input_size", 224))
     stats = data_stats.Stats.from_dict(read_json(folder / STATS_JSON) or {**RELEASE_STATS, "input_size": size})
     fs, src = _frame_size(folder, {}, frame_size, RELEASE_FRAME, "release default (GelSight Mini)")

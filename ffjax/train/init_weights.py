@@ -45,8 +45,8 @@ def _converted(kind: str, path: Path) -> tuple[dict, dict, dict]:
     if kind == "resnet18":
         resnet_cfg, params, stats = convert.resnet18(path)
         return {"resnet": resnet_cfg}, {"params": {"backbone": params}, "batch_stats": {"backbone": stats}}, {}
-    model_cfg, variables = convert.feelanyforce(path)
-    return model_cfg, variables, {"input_size": 224}
+    sections, variables, size = convert.from_release.convert_file(path)
+    return sections, variables, {"input_size": size}
 
 
 def apply(cfg: dict, spec, text: str) -> tuple[dict, tuple | None, dict | None]:
