@@ -25,7 +25,7 @@ import numpy as np
 from experiments import common, kernel, style
 from experiments import paper_numbers as P
 from experiments.tables import save_png
-from ffjax import registry
+from ffjax import cli, registry
 from ffjax.sim.sensors import get_sensor, with_markers, with_pattern_moving
 
 PER_LEVEL = {"smoke": 9, "quick": 180, "full": 360, "gpu": 360, "paper": 360}
@@ -360,8 +360,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
                     help="registry names (default: the ablation's methods, else the paper set)")
     ap.add_argument("--ablation", default=None, help="ablation results folder (default: results/ablation-<preset>)")
-    ap.add_argument("--levels", type=int, default=None, help="levels per factor (default: all; 2 at smoke)")
-    ap.add_argument("--per-level", type=int, default=None, help="presses per level (default: 180 at quick)")
+    ap.add_argument("--levels", type=cli.integer(1), default=None, help="levels per factor (default: all; 2 at smoke)")
+    ap.add_argument("--per-level", type=cli.integer(1), default=None, help="presses per level (default: 180 at quick)")
     ap.add_argument("--factors", nargs="+", default=None, metavar="NAME", help="subset of the factors")
     args = ap.parse_args(argv)
     cfg = common.config_from_args(ap, args)
@@ -775,7 +775,5 @@ def plot(results: dict, out: Path) -> list[Path]:
 
 if __name__ == "__main__":
     import sys
-
-    from ffjax import cli
 
     sys.exit(cli.run(main))

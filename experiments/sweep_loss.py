@@ -22,7 +22,7 @@ import numpy as np
 
 from experiments import common, kernel, style, tables
 from experiments import paper_numbers as P
-from ffjax import registry
+from ffjax import cli, registry
 
 DEFAULT_BETAS = (0.0, 1.0, 3.0, 10.0, 30.0)
 # What each run is scored on (from its ablation evaluation): unseen objects = Table I mean; unseen
@@ -66,8 +66,9 @@ def scores(ev: dict) -> dict:
 def main(argv=None) -> dict:
     ap = common.base_parser(__doc__.strip().splitlines()[0], experiment="sweep_loss",
                             costs={"quick": "reuses an ablation's runs (--ablation)"})
-    ap.add_argument("--betas", type=float, nargs="+", default=list(DEFAULT_BETAS), help="depth-loss weights")
-    ap.add_argument("--alpha", type=float, default=1.0, help="force-loss weight (the x axis is beta / alpha)")
+    ap.add_argument("--betas", type=cli.number(0, inclusive=True), nargs="+", default=list(DEFAULT_BETAS),
+                    help="depth-loss weights")
+    ap.add_argument("--alpha", type=cli.number(0), default=1.0, help="force-loss weight (the x axis is beta / alpha)")
     ap.add_argument("--seeds", type=int, default=None,
                     help="seeds per beta (default: the preset's `seeds`: 1, 3 at full)")
     ap.add_argument("--base", default="dino_rd", help="registry method the variants are made from")
@@ -326,6 +327,4 @@ def plot(results: dict, path: Path) -> Path:
 
 
 if __name__ == "__main__":
-    from ffjax import cli
-
     sys.exit(cli.run(main))

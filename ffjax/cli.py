@@ -3,12 +3,20 @@
 A fault the user can fix (a missing or foreign file, a bad value, a refused checkpoint or dataset) prints
 `error: <message>` and exits 2; a runtime fault (a camera that fails, a full disk) exits 1. The message is
 the exception's own, which names the file and what to do. Set FFJAX_DEBUG=1 for the full traceback.
+
+argparse types (`integer(1)`, `number(0)`, `fraction`, `frame_size`) refuse a bad flag value at parse time,
+before any work, naming the flag and the form expected.
 """
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import logging
+import math
 import os
+import re
+import signal
 import sys
 import threading
 
@@ -76,6 +84,74 @@ def fail(message, code: int = RUNTIME) -> int:
     _REPORTED.set()
     print(f"error: {message}", file=sys.stderr, flush=True)
     return code
+
+
+class BadValue(argparse.ArgumentTypeError, ValueError):
+    """A flag's value outside its form or range. Raised by the argparse types below, argparse reports it as
+    `argument --flag: <message>` (exit 2); elsewhere (a library call) it is a ValueError."""
+
+
+def integer(minimum: int, meaning: str = ""):
+    """argparse type: an int >= minimum; `meaning` says what the smallest value does (e.g. "0: never")."""
+    def parse(text: str) -> int:
+        value = int(text) if re.fullmatch(r"\s*[-+]?[0-9]+\s*", text) else None  # int() also takes "1_0"
+        if value is None or value < minimum:
+            raise BadValue(f"expected an integer >= {minimum}{f' ({meaning})' if meaning else ''}, got {text!r}")
+        return value
+
+    return parse
+
+
+def number(minimum: float = 0.0, inclusive: bool = False):
+    """argparse type: a finite float > minimum (>= with `inclusive`); nan and inf are refused."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value) or value < minimum or (value == minimum and not inclusive):
+            raise BadValue(f"expected a finite number {'>=' if inclusive else '>'} {minimum:g}, got {text!r}")
+        return value
+
+    return parse
+
+
+def fraction(text: str) -> float:
+    """argparse type: a float in [0, 1)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0 <= value < 1:  # also refuses nan
+        raise BadValue(f"expected a fraction in [0, 1), got {text!r}")
+    return value
+
+
+def frame_size(text: str) -> tuple[int, int]:
+    """argparse type: "HxW" (both >= 1) as (H, W)."""
+    m = re.fullmatch(r"\s*([0-9]+)\s*[xX]\s*([0-9]+)\s*", str(text))
+    if not m or min(int(m[1]), int(m[2])) < 1:
+        raise BadValue(f"expected HxW such as 240x320 (height x width, both >= 1), got {text!r}")
+    return int(m[1]), int(m[2])
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt():
+    """While the block runs, SIGTERM (kill, a supervisor stopping the tool) raises KeyboardInterrupt like Ctrl-C,
+    so the cleanup a Ctrl-C runs (temp files removed, a video finalised) runs too; the default action would end
+    the process at once. Only in the main thread (signal handlers can be set nowhere else)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 def run(main, argv=None) -> int:

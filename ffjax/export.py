@@ -4,7 +4,9 @@
 
 writes `force.jaxexport` (StableHLO with the weights baked in) and `force.jaxexport.json` (frame size,
 channel order, force range, input/output description, the export's sha256; written last). An existing export
-is replaced only with --force, and never inside the checkpoint folder it is made from.
+is replaced only with --force, and never inside the checkpoint folder it is made from. --platforms are jax's
+built-in lowering targets (cpu, cuda, rocm, tpu); the export runs only on those. A killed export leaves no temp
+file behind (Ctrl-C and SIGTERM remove it; after a SIGKILL the next export to the same --out does).
 
 The whole preprocessing is inside the function: background subtraction (clip(img - bg + 127)), pad to
 square, resize, /255, normalization. The resize is written as two small matrix products whose weights are taken
@@ -21,7 +23,8 @@ Running it needs only jax (no ffjax, flax or training code):
     forces = np.asarray(fn.call(frames, background))        # (B, H, W, 3), (H, W, 3) uint8 RGB -> (B, 3) N
 
 (or `ffjax.export.load(path)(frames, background)`, which also verifies the file against the sha256 in its
-sidecar, checks shapes and flags out-of-range and NaN/inf forces like `inference.Predictor.predict`).
+sidecar (an export without one loads with a warning that it is unverified), checks shapes and flags out-of-range
+and NaN/inf forces like `inference.Predictor.predict`).
 """
 
 from __future__ import annotations
@@ -38,9 +41,11 @@ import numpy as np
 
 from ffjax import cli, inference
 from ffjax.errors import CheckpointError
-from ffjax.files import atomic_write_bytes, atomic_write_json, check_output, read_json, sha256_bytes
+from ffjax.files import atomic_write_bytes, atomic_write_json, check_output, read_json, remove_stale_temps, sha256_bytes
+from ffjax.store.checksums import UnverifiedWarning, warn_unverified
 
 FORMAT = "ffjax.export/1"
+PLATFORMS = ("cpu", "cuda", "rocm", "tpu")  # jax.export's built-in lowering platforms
 
 
 def resize_matrix(side: int, size: int) -> np.ndarray:
@@ -84,12 +89,27 @@ def forces_fn(pred: inference.Predictor):
 
 
 def export(pred: inference.Predictor, batch: int = 1, platforms=None) -> jax.export.Exported:
-    """The jax.export.Exported of `forces_fn`; batch 0 = symbolic batch size."""
+    """The jax.export.Exported of `forces_fn`; batch 0 = symbolic batch size; platforms among PLATFORMS."""
+    if int(batch) < 0:
+        raise ValueError(f"batch must be >= 1, or 0 for a symbolic batch size; got {batch}")
+    if platforms:
+        platforms = parse_platforms(platforms if isinstance(platforms, str) else ",".join(platforms))
     h, w = pred.frame_size
     b = jax.export.symbolic_shape("b")[0] if batch == 0 else int(batch)
     args = (jax.ShapeDtypeStruct((b, h, w, 3), jnp.uint8), jax.ShapeDtypeStruct((h, w, 3), jnp.uint8))
     kw = {"platforms": tuple(platforms)} if platforms else {}
     return jax.export.export(jax.jit(forces_fn(pred)), **kw)(*args)
+
+
+def parse_platforms(text: str) -> tuple[str, ...]:
+    """'cpu,cuda' -> ('cpu', 'cuda'); anything outside PLATFORMS is refused (jax would export it and the
+    function would fail when called). An argparse type."""
+    names = [t.strip().lower() for t in str(text).split(",")]
+    bad = [n for n in names if n not in PLATFORMS]
+    if bad:
+        hint = " ('gpu' is cuda for NVIDIA, rocm for AMD)" if "gpu" in bad else ""
+        raise cli.BadValue(f"expected a comma-separated list of {', '.join(PLATFORMS)}, got {text!r}{hint}")
+    return tuple(dict.fromkeys(names))  # a platform named twice is exported once
 
 
 def sidecar_path(path) -> Path:
@@ -99,10 +119,12 @@ def sidecar_path(path) -> Path:
 def save(pred: inference.Predictor, path, batch: int = 1, platforms=None) -> Path:
     """Write the serialized function to `path` and its description (with the file's sha256) to `path`.json;
     returns `path`. A kill or a full disk never leaves half a file; between the two files it leaves an export
-    that its old sidecar refuses."""
+    that its old sidecar refuses. Temp files of an earlier export killed mid-write are removed."""
     exp = export(pred, batch, platforms)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    for target in (path, sidecar_path(path)):
+        remove_stale_temps(target)
     raw = exp.serialize()
     atomic_write_bytes(path, raw)
     info = {
@@ -138,9 +160,15 @@ class ExportedPredictor:
         if self.info.get("sha256") and sha256_bytes(raw) != self.info["sha256"]:
             raise CheckpointError(f"{self.path} is corrupt, truncated or from another export: its sha256 differs "
                                   f"from the one in {side.name}; export it again")
+        ck = self.info.get("checkpoint")
+        how = (f"export it again: python -m ffjax.export --checkpoint "
+               f"{ck['path'] if isinstance(ck, dict) and ck.get('path') else 'RUN'} --out {self.path} --force")
         if not self.info:
-            warnings.warn(f"{self.path} has no {side.name} beside it: the file cannot be verified and frame sizes "
-                          "are not checked", stacklevel=2)
+            warnings.warn(f"{self.path} has no {side.name} beside it: the file is not verified (an edit would change "
+                          f"the forces unnoticed) and frame sizes are not checked. To make it verified again, {how}",
+                          UnverifiedWarning, stacklevel=2)
+        elif not self.info.get("sha256"):
+            warn_unverified(side, ["sha256"], f"{self.path.name} is", how)
         try:
             self.exported = jax.export.deserialize(bytearray(raw))
         except Exception as e:  # noqa: BLE001 - flatbuffers/struct errors of a damaged file name neither it nor why
@@ -194,20 +222,22 @@ def main(argv=None) -> int:
                                 epilog="\n".join(__doc__.splitlines()[1:]))
     p.add_argument("--checkpoint", required=True, help="training run, calibrated or converted folder")
     p.add_argument("--out", required=True, help="output file (a .json sidecar is written beside it)")
-    p.add_argument("--batch", type=int, default=1, help="fixed batch size (0: symbolic); default 1")
+    p.add_argument("--batch", type=cli.integer(0, "0: a symbolic batch size, any batch"), default=1,
+                   help="fixed batch size (0: symbolic); default 1")
     p.add_argument("--which", default="best", choices=("best", "latest"))
-    p.add_argument("--platforms", default=None,
-                   help="comma-separated lowering targets, e.g. cpu,cuda (default: this machine's)")
-    p.add_argument("--frame-size", default=None, help="HxW of the sensor frames, if the checkpoint lacks it")
+    p.add_argument("--platforms", type=parse_platforms, default=None,
+                   help=f"comma-separated lowering targets among {', '.join(PLATFORMS)}, e.g. cpu,cuda (default: "
+                   "this machine's)")
+    p.add_argument("--frame-size", type=cli.frame_size, default=None,
+                   help="HxW of the sensor frames, if the checkpoint lacks it")
     p.add_argument("--force", action="store_true", help="replace an existing export (and its sidecar)")
     a = p.parse_args(argv)
     for target in (a.out, sidecar_path(a.out)):  # before loading and compiling
         check_output(target, reads=[a.checkpoint], force=a.force)
     cli.check_out(p, Path(a.out).absolute().parent)
-    fs = tuple(int(v) for v in a.frame_size.lower().split("x")) if a.frame_size else None
-    pred = inference.load(a.checkpoint, a.which, frame_size=fs)
-    plats = a.platforms.split(",") if a.platforms else None
-    path = save(pred, a.out, a.batch, plats)
+    with cli.sigterm_as_interrupt():  # a stopped export removes its temp file, as on Ctrl-C
+        pred = inference.load(a.checkpoint, a.which, frame_size=a.frame_size)
+        path = save(pred, a.out, a.batch, a.platforms)
     print(f"exported {a.checkpoint} -> {path} (+ {sidecar_path(path).name}); frames {pred.frame_size[0]}x"
           f"{pred.frame_size[1]} RGB uint8, batch {a.batch or 'symbolic'}")
     return 0

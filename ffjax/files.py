@@ -7,7 +7,9 @@
 - `check_writable(folder)`: fail in a second, before any work, when an output cannot be written.
 - `check_output(out, reads=..., force=...)`: refuse an output inside (or holding) a folder the command reads
   from, and an existing output unless --force.
-- `folder_lock(folder)`: one writer per output folder (an flock the kernel drops when the process dies).
+- `folder_lock(folder)`: one writer per output folder (an flock the kernel drops when the process dies; the
+  file is removed on release).
+- `remove_stale_temps(path)`: the temp files of writers of `path` killed mid-write.
 - `read_json(path)`: a JSON object, or an error naming the file; `sha256_bytes`, `json_digest` (of `as_json`'s
   form, so the same before writing and after reading) for verifying.
 """
@@ -17,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import fcntl
+import glob
 import hashlib
 import json
 import os
@@ -42,12 +45,39 @@ def atomic_write(path, write, hint: str = "") -> None:
             f.flush()
             os.fsync(f.fileno())  # the bytes are on disk before the rename makes them visible
         os.replace(tmp, path)
-    except OSError as e:
+    except BaseException as e:  # a full disk, or Ctrl-C mid-write: no half-written temp file stays behind
         with contextlib.suppress(OSError):
             tmp.unlink()
+        if not isinstance(e, OSError):
+            raise
         why = "the disk is full" if e.errno == errno.ENOSPC else (e.strerror or str(e))
         raise WriteError(e.errno, f"could not write {path}: {why}" + (f"; {hint}" if hint else "")) from e
     fsync_dir(path.parent)
+
+
+def remove_stale_temps(path) -> list[Path]:
+    """Remove the temp files atomic_write left beside `path` in processes that no longer run (killed mid-write:
+    no handler runs on SIGKILL or a power cut); returns them. A running writer's temp file is left alone."""
+    path = Path(path)
+    prefix = f".{path.name}.tmp"
+    removed = []
+    for p in path.parent.glob(f"{glob.escape(prefix)}*"):
+        pid = p.name[len(prefix):]
+        if pid.isascii() and pid.isdigit() and not _running(int(pid)):
+            with contextlib.suppress(OSError):
+                p.unlink()
+                removed.append(p)
+    return removed
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)  # signal 0: only asks whether the process exists
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
 
 
 def atomic_write_bytes(path, data: bytes, hint: str = "") -> None:
@@ -156,18 +186,10 @@ def staged_folder(out):
 @contextlib.contextmanager
 def folder_lock(folder, what: str = "run"):
     """Hold FOLDER/.lock exclusively while the block runs; FolderLockedError naming the holder (pid, host, start
-    time, command) when another process holds it. The kernel releases it when the process ends."""
+    time, command) when another process holds it. The kernel releases it when the process ends; a clean release
+    also removes the file."""
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    f = open(folder / LOCK_NAME, "a+")
-    try:
-        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        f.seek(0)
-        holder = f.read().strip() or "another process"
-        f.close()
-        raise FolderLockedError(f"{folder} is in use by another {what} ({holder}); wait for it to finish or "
-                                "choose another output folder") from None
+    f = _lock(folder, what)
     try:
         f.seek(0)
         f.truncate()
@@ -176,10 +198,41 @@ def folder_lock(folder, what: str = "run"):
         f.flush()
         yield folder
     finally:
+        # unlinked while still locked: a process that opened the file before the unlink gets the lock only on
+        # the orphaned inode, sees that the path no longer names it, and locks the path afresh (see _lock)
         with contextlib.suppress(OSError):
-            f.truncate(0)
+            if _same_file(f, folder / LOCK_NAME):
+                os.unlink(folder / LOCK_NAME)
         fcntl.flock(f, fcntl.LOCK_UN)
         f.close()
+
+
+def _lock(folder: Path, what: str):
+    """FOLDER/.lock opened and flocked, checked to be the file the path still names (a holder unlinks it when it
+    releases: the lock of a file opened just before that guards nothing)."""
+    while True:
+        folder.mkdir(parents=True, exist_ok=True)
+        f = open(folder / LOCK_NAME, "a+")
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            f.seek(0)
+            holder = f.read().strip() or "another process"
+            f.close()
+            raise FolderLockedError(f"{folder} is in use by another {what} ({holder}); wait for it to finish or "
+                                    "choose another output folder") from None
+        if _same_file(f, folder / LOCK_NAME):
+            return f
+        f.close()  # released and unlinked by its holder between our open and our flock: try again
+
+
+def _same_file(f, path: Path) -> bool:
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return False
+    own = os.fstat(f.fileno())
+    return (st.st_dev, st.st_ino) == (own.st_dev, own.st_ino)
 
 
 def read_json(path, missing_ok: bool = True) -> dict | None:

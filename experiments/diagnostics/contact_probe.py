@@ -25,6 +25,7 @@ from tqdm import tqdm
 
 from experiments import common
 from experiments.tables import save_png
+from ffjax import cli
 
 STREAM = 2000  # sampling stream no dataset split (or experiments.stability) uses
 DF = 1.0  # N: the Fz step of the sensitivity
@@ -191,7 +192,7 @@ def plot(r: dict, path: Path) -> Path:
 
 def main(argv=None) -> dict:
     ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "simulator only, no training"})
-    ap.add_argument("--per-shape", type=int, default=None, help="presses per shape (default by preset)")
+    ap.add_argument("--per-shape", type=cli.integer(1), default=None, help="presses per shape (default by preset)")
     args = ap.parse_args(argv)
     cfg = common.config_from_args(ap, args)
     out = Path(args.out or common.ROOT / "results" / f"contact_probe-{args.preset}")
@@ -202,7 +203,5 @@ def main(argv=None) -> dict:
 
 if __name__ == "__main__":
     import sys
-
-    from ffjax import cli
 
     sys.exit(cli.run(main))

@@ -213,9 +213,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--recording", default=None, help="a real rest recording: DIR/background.png and DIR/tactile/*.png")
     ap.add_argument("--name", default="GelSight Mini (real)", help="the recording's name in the tables")
     ap.add_argument("--source", default=None, help="where the recording comes from, for the report (default: DIR)")
-    ap.add_argument("--fps", type=float, default=30.0, help="frame rate when frame names are not timestamps")
+    ap.add_argument("--fps", type=cli.number(0), default=30.0, help="frame rate when frame names are not timestamps")
     ap.add_argument("--sensors", nargs="*", default=list(SIM_SENSORS), help="simulated sensors to measure")
-    ap.add_argument("--sim-frames", type=int, default=40, help="frames per simulated sensor (default 40)")
+    ap.add_argument("--sim-frames", type=cli.integer(1), default=40, help="frames per simulated sensor (default 40)")
     ap.add_argument("--out", default=None, help="results folder (default: results/rest_recording)")
     args = ap.parse_args(argv)
     if args.sim_frames < 3:

@@ -24,7 +24,6 @@ ffjax.export accept; its expected frame size is the calibration frames'. The che
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 import jax
@@ -89,7 +88,6 @@ def calibrate(checkpoint, data, out, layers: str = "last", steps: int | None = N
         fit, hold = split_indices(len(y), holdout, seed)
         if len(hold) == 0:
             log("warning: no held-out frames (holdout 0 or a single frame): errors below are on the fitting set")
-            hold = fit
         head = ckpt.cfg["model"]["regressor"]
         # as numpy, like fit_regressor's output: predict_from_features then compiles once for both (committed
         # device arrays would be another cache entry)
@@ -99,14 +97,16 @@ def calibrate(checkpoint, data, out, layers: str = "last", steps: int | None = N
             stats = jax.tree.map(np.asarray, stats)
         lo, hi = ckpt.stats.force_min, ckpt.stats.force_max
         # predictions for all frames at once, then indexed: one compiled shape for before and after
-        before = metrics.summarize(core.predict_from_features(head, reg, feats, stats)[hold], y[hold], lo, hi)
+        pred_before = core.predict_from_features(head, reg, feats, stats)
         new_reg = core.fit_regressor(head, reg, feats[fit], y[fit], layers=layers, steps=steps, lr=lr,
                                      batch_size=batch_size, seed=seed, reg_stats=stats)
         _check_finite(new_reg, steps, lr, out)
         pred = core.predict_from_features(head, new_reg, feats, stats)
-        after = metrics.summarize(pred[hold], y[hold], lo, hi)
+        # no held-out part: its errors are None, not the fitting set's under the held-out name
+        before = metrics.summarize(pred_before[hold], y[hold], lo, hi) if len(hold) else None
+        after = metrics.summarize(pred[hold], y[hold], lo, hi) if len(hold) else None
         after_fit = metrics.summarize(pred[fit], y[fit], lo, hi)
-        before_fit = metrics.summarize(core.predict_from_features(head, reg, feats, stats)[fit], y[fit], lo, hi)
+        before_fit = metrics.summarize(pred_before[fit], y[fit], lo, hi)
         report = {
             "checkpoint": str(checkpoint), "data": str(data), "layers": layers, "steps": steps, "lr": lr,
             "batch_size": batch_size, "holdout": holdout, "seed": seed, "n": int(len(y)), "n_fit": int(len(fit)),
@@ -132,36 +132,18 @@ def format_report(r: dict) -> str:
         mae = " ".join(f"{v:6.3f}" for v in m["mae_n"])
         return f"  {name:<8} {m['nl1']:7.2f}   ({ax})   {mae}"
 
+    held = r["n_holdout"] > 0
+    on = (f"held-out {r['n_holdout']} frames:" if held else
+          f"no held-out frames, errors on the {r['n_fit']} fitting frames (they show the fit only):")
     return "\n".join([
-        f"calibrated layers={r['layers']} on {r['n_fit']} frames, {r['steps']} steps, lr {r['lr']:g}; "
-        f"held-out {r['n_holdout']} frames:",
+        f"calibrated layers={r['layers']} on {r['n_fit']} frames, {r['steps']} steps, lr {r['lr']:g}; {on}",
         "             nL1 %   (Fx     Fy     Fz)      MAE N (Fx     Fy     Fz)",
-        line("before", r["holdout_before"]),
-        line("after", r["holdout_after"]),
-        "  (nL1: mean |error| / the training force range per axis, in %; held-out frames are of the calibration"
-        " objects, so they do not show how other shapes fare)",
+        line("before", r["holdout_before" if held else "fit_before"]),
+        line("after", r["holdout_after" if held else "fit_after"]),
+        "  (nL1: mean |error| / the training force range per axis, in %; " + (
+            "held-out frames are of the calibration objects, so they do not show how other shapes fare)" if held
+            else "hold some frames out (--holdout, and record more presses) to see how the calibration generalizes)"),
     ])
-
-
-def _positive_int(text: str) -> int:
-    v = int(text)
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return v
-
-
-def _positive_float(text: str) -> float:
-    v = float(text)
-    if not math.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
-    return v
-
-
-def _fraction(text: str) -> float:
-    v = float(text)
-    if not 0 <= v < 1:  # also refuses nan
-        raise argparse.ArgumentTypeError(f"must be in [0, 1), got {text}")
-    return v
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -172,12 +154,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", required=True, help="release-layout CSV (or a folder holding data.csv / shards)")
     p.add_argument("--out", required=True, help="new folder for the calibrated checkpoint")
     p.add_argument("--layers", default="last", choices=core.LAYERS)
-    p.add_argument("--steps", type=_positive_int, default=None, help="optimizer steps (default: cfg calibrate.steps)")
-    p.add_argument("--lr", type=_positive_float, default=None, help="Adam learning rate (default: cfg calibrate.lr)")
-    p.add_argument("--holdout", type=_fraction, default=None, help="held-out fraction (default: cfg, 0.2)")
-    p.add_argument("--batch-size", type=_positive_int, default=None)
+    p.add_argument("--steps", type=cli.integer(1), default=None,
+                   help="optimizer steps (default: cfg calibrate.steps)")
+    p.add_argument("--lr", type=cli.number(0), default=None, help="Adam learning rate (default: cfg calibrate.lr)")
+    p.add_argument("--holdout", type=cli.fraction, default=None, help="held-out fraction (default: cfg, 0.2)")
+    p.add_argument("--batch-size", type=cli.integer(1), default=None)
     p.add_argument("--background", default=None, help="no-contact frame, if not background.png beside the CSV")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=cli.integer(0), default=0)
     p.add_argument("--which", default="best", choices=("best", "latest"))
     p.add_argument("--force", "--overwrite", dest="force", action="store_true",
                    help="replace an existing --out (it may never be inside --checkpoint or --data)")

@@ -2,7 +2,8 @@
 SIGUSR1, and optionally refreshed from frames without contact: `ffjax.live.background`), every frame predicted
 and flagged, optionally smoothed, printed, shown, and recorded to forces.csv / annotated.mp4 (an earlier
 recording in the folder is kept aside as forces.1.csv, ...). A full disk stops the recording with one error
-naming the file; forces.csv holds whole rows only."""
+naming the file and saying what was kept: forces.csv holds whole rows only, and an annotated.mp4 that cannot be
+played (no frame written, or its index could not be) is removed."""
 
 from __future__ import annotations
 
@@ -20,11 +21,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ffjax import inference
+from ffjax import cli, inference
 from ffjax.errors import WriteError
 from ffjax.files import folder_lock
 from ffjax.live.background import BackgroundRefresh
-from ffjax.live.sources import CameraLost
+from ffjax.live.sources import CameraLost, VideoCut
 from ffjax.live.view import Window, annotate
 
 REFRESH_EVERY = 10  # quiet frames between two refreshes of the predictor's background (each one is checked)
@@ -34,7 +35,7 @@ def resizer(spec, pred):
     """frame -> frame at `spec` ("HxW", or "auto": the checkpoint's frame size); unchanged when spec is empty."""
     if not spec:
         return lambda f: f
-    h, w = pred.frame_size if spec == "auto" else (int(v) for v in spec.lower().split("x"))
+    h, w = pred.frame_size if spec == "auto" else cli.frame_size(spec) if isinstance(spec, str) else spec
 
     def fn(frame):
         if frame.shape[:2] == (h, w):
@@ -51,13 +52,15 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
     """Drive `pred` over `frames` (iterable of (t, rgb, label)); returns a summary dict.
 
     Frames before `warmup` are dropped; the next `bg_frames` are averaged into the background (unless
-    `background` is given) and then predicted like every later frame. refresh ({"threshold": counts, "frames":
-    n}, see `ffjax.live.background`): the background follows the frames that show no contact, handed to the
-    predictor every REFRESH_EVERY quiet frames. A None/empty frame is skipped and counted; a CameraLost from the
-    source ends the loop cleanly (summary "stopped": "camera_lost", "error"), so does a full disk ("disk_full",
-    the file named). Dark, saturated or background-mismatched frames are still predicted, logged when the issue
-    starts, and counted in summary "flagged". forces.csv is written a whole row at a time, unbuffered, so a
-    crash, a kill or a full disk leaves whole rows only."""
+    `background` is given) and then predicted like every later frame. resize: "auto", (H, W) or "HxW".
+    refresh ({"threshold": counts, "frames": n}, see `ffjax.live.background`): the background follows the frames
+    that show no contact, handed to the predictor every REFRESH_EVERY quiet frames. A None/empty frame is skipped
+    and counted; a CameraLost from the source ends the loop cleanly (summary "stopped": "camera_lost", "error"),
+    so do a video that decoded fewer frames than it holds ("video_cut") and a failed write ("disk_full", the file
+    named); their "error" ends with what was kept. An annotated.mp4 that cannot be played is removed. Dark,
+    saturated or background-mismatched frames are still predicted, logged when the issue starts, and counted in
+    summary "flagged". forces.csv is written a whole row at a time, unbuffered, so a crash, a kill or a full disk
+    leaves whole rows only."""
     resize_fn = resizer(resize, pred)
     retake = {"flag": background is None}
     if background is not None:
@@ -74,7 +77,8 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
     n_done, n_oor, skipped, pending = 0, 0, 0, []
     follow = None  # the BackgroundRefresh once a background is there
     refreshes = 0
-    csv_path = None
+    csv_path = video_path = None
+    n_rows = n_video = 0  # rows in forces.csv, frames handed to the video writer
     lat, rate, t_start, t_prev, t_first = [], None, time.perf_counter(), None, None
     empty, flagged, last_issue, stopped, error = 0, {}, "", "end", None
     try:
@@ -143,6 +147,7 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                 if rows is not None:
                     _write_row(csv_file, csv_path, [f"{t_i:.4f}", *(f"{v:.5f}" for v in force), int(oor), lab]
                                + ([f"{v:.5f}" for v in raw] if smoother else []))
+                    n_rows += 1
                 if print_every and n_done % print_every == 0:
                     log(f"t={t_i:9.3f}s  Fx={force[0]:+7.3f}  Fy={force[1]:+7.3f}  Fz={force[2]:+7.3f} N"
                         + ("  [NON-FINITE]" if pred.last_nonfinite[0] else "  [OUT OF RANGE]" if oor else "")
@@ -151,12 +156,13 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
                     vis = annotate(f_i, force, pred.force_min, pred.force_max, oor, rate)
                     if out is not None:
                         if writer is None:
-                            writer = cv2.VideoWriter(str(_keep_old(out / "annotated.mp4", log)),
-                                                     cv2.VideoWriter_fourcc(*"mp4v"),
+                            video_path = _keep_old(out / "annotated.mp4", log)
+                            writer = cv2.VideoWriter(str(video_path), cv2.VideoWriter_fourcc(*"mp4v"),
                                                      float(fps_cap or 25.0), (vis.shape[1], vis.shape[0]))
                         # OpenCV's writer fails a frame with a warning and goes on: check the room first
-                        _room_for(out / "annotated.mp4", 4 * vis.nbytes)
+                        _room_for(video_path, 4 * vis.nbytes)
                         writer.write(vis)
+                        n_video += 1
                     if window is not None:
                         key = window.show(vis)
                         if key in (ord("q"), 27):
@@ -181,18 +187,29 @@ def run(pred: inference.Predictor, frames, out=None, headless=True, smoother=Non
     except CameraLost as e:  # the source gave up reconnecting: stop here, everything so far is written
         stopped, error = "camera_lost", str(e)
         log(f"stopping: {e}")
-    except WriteError as e:  # a full disk: stop recording, whole rows and the video up to here are kept
+    except VideoCut as e:  # a damaged file: what was decoded is predicted and written; the loss is the error
+        stopped, error = "video_cut", str(e)
+    except WriteError as e:  # a full disk: stop recording, whole rows and a playable video are kept
         stopped, error = "disk_full", str(e)
     finally:
         if writer is not None:
             writer.release()
         if csv_file is not None:
             csv_file.close()
+        # cv2 writes the video's index at release and says nothing when that fails (a full disk): a file it cannot
+        # open again is no recording
+        playable = video_path is None or _playable(video_path)
+        if not playable:
+            video_path.unlink(missing_ok=True)
         lock.close()
         if window is not None:
             window.close()
         if old is not None:
             signal.signal(signal.SIGUSR1, old)
+    if not playable and error is None and n_video:  # frames were written and are lost (none: a bare header)
+        stopped, error = "disk_full", f"{video_path}: could not be completed (is the disk full?)"
+    if error is not None and stopped != "camera_lost":
+        error += "; " + _kept(csv_path, n_rows, video_path, n_video, playable)
     wall = time.perf_counter() - t_start
     # the rate from the first prediction on: the first frame pays the one-off compile
     rate_hz = (n_done - 1) / (t_prev - t_first) if n_done > 1 and t_prev > t_first else 0.0
@@ -223,8 +240,7 @@ def _write_row(f, path: Path, values) -> None:
         with contextlib.suppress(OSError):
             f.truncate(pos)
         raise WriteError(errno.ENOSPC if e.errno is None else e.errno,
-                         f"{path}: cannot write ({e.strerror or e}); recording stopped, the rows before are "
-                         "kept") from e
+                         f"{path}: cannot write ({e.strerror or e}); recording stopped") from e
 
 
 def _room_for(path: Path, nbytes: int) -> None:
@@ -232,7 +248,27 @@ def _room_for(path: Path, nbytes: int) -> None:
     free = shutil.disk_usage(path.parent).free
     if free < nbytes:
         raise WriteError(errno.ENOSPC, f"{path}: no space left on the device ({free} bytes free); recording "
-                                       "stopped, the video up to here is kept")
+                                       "stopped")
+
+
+def _playable(path: Path) -> bool:
+    """cv2 opens the video and finds frames in it."""
+    cap = cv2.VideoCapture(str(path))
+    try:
+        return cap.isOpened() and cap.get(cv2.CAP_PROP_FRAME_COUNT) > 0
+    finally:
+        cap.release()
+
+
+def _kept(csv_path, n_rows: int, video_path, n_video: int, playable: bool) -> str:
+    """What a stopped recording left on disk, for its error line."""
+    if csv_path is None:
+        return "nothing was written"
+    kept = f"kept {csv_path.name} ({n_rows} row{'s' * (n_rows != 1)})"
+    if video_path is None:
+        return kept
+    return f"{kept} and {video_path.name} ({n_video} frame{'s' * (n_video != 1)})" if playable else \
+        f"{kept}; {video_path.name} could not be played and was removed"
 
 
 def _keep_old(path: Path, log=print) -> Path:

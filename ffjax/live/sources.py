@@ -1,5 +1,6 @@
 """Frame sources of the live loop, iterables of (t seconds, RGB uint8 frame, label): a camera that survives
-dropped frames and disconnects (CameraLost when every reconnect fails), a video file, a folder of images."""
+dropped frames and disconnects (CameraLost when every reconnect fails), a video file (VideoCut when it decodes
+fewer frames than its header gives), a folder of images."""
 
 from __future__ import annotations
 
@@ -11,10 +12,17 @@ import cv2
 from ffjax.data.images import read_rgb
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+# failed reads in a row that end a video before its frame count: a damaged frame fails one read (the decoder goes
+# on with the next), a file cut short fails every one
+VIDEO_BAD_READS = 30
 
 
 class CameraLost(RuntimeError):
     """The camera stopped delivering frames and every reconnect attempt failed."""
+
+
+class VideoCut(RuntimeError):
+    """A video file decoded fewer frames than its header gives: damaged frames, or the file is cut short."""
 
 
 class CameraFrames:
@@ -126,21 +134,29 @@ def video_frames(path):
     cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
         raise RuntimeError(f"cannot open video {path}: not a video cv2 can decode")
-    return _read_video(cap)
+    return _read_video(cap, path)
 
 
-def _read_video(cap):
+def _read_video(cap, path):
+    """The decoded frames; a frame that fails to decode is skipped. VideoCut at the end when fewer frames were
+    decoded than the container's frame count (when it gives one)."""
     fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
+    total = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))  # <= 0: not known, the first failed read is the end
+    i = failed = 0  # frames decoded; failed reads in a row
     try:
-        i = 0
         while True:
             ok, frame = cap.read()
-            if not ok:
-                return
-            yield i / fps, frame[..., ::-1], i
-            i += 1
+            if ok:
+                failed = 0
+                yield i / fps, frame[..., ::-1], i
+                i += 1
+            elif i >= total or (failed := failed + 1) >= VIDEO_BAD_READS:
+                break
     finally:
         cap.release()
+    if i < total:
+        raise VideoCut(f"--video {path}: only {i} of its {total} frames could be decoded (the file is damaged or "
+                       "cut short)")
 
 
 def image_frames(folder, fps: float = 25.0, exclude=()):

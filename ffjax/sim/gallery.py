@@ -91,7 +91,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m ffjax.sim.gallery", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", required=True)
-    ap.add_argument("--size", type=int, nargs=2, default=None, metavar=("H", "W"),
+    ap.add_argument("--size", type=cli.integer(2), nargs=2, default=None, metavar=("H", "W"),
                     help="render size (default native)")
     args = ap.parse_args(argv)
     cli.check_out(ap, args.out)

@@ -2,6 +2,8 @@
 reconnects with backoff, or stops cleanly with forces.csv complete. Random-weight smoke model, no training."""
 
 import csv
+import os
+import signal
 
 import cv2
 import jax
@@ -10,10 +12,11 @@ import numpy as np
 import pytest
 
 import configs
-from ffjax import data, inference, live, models, registry, sim, store
+from ffjax import cli, data, inference, live, models, registry, sim, store
 
 H, W, SIZE = 24, 32, 32
 BG = sim.sensors.get_sensor("mini-1").background((H, W))
+REAL_CAPTURE = cv2.VideoCapture
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +62,8 @@ class FakeDevice:
         self.sessions, self.caps, self.waits = list(sessions), [], []
 
     def open(self, index):
+        if isinstance(index, str):  # a file: the loop checks the annotated.mp4 it wrote
+            return REAL_CAPTURE(index)
         cap = FakeCapture(self.sessions.pop(0)) if self.sessions else FakeCapture(opened=False)
         self.caps.append(cap)
         return cap
@@ -145,7 +150,7 @@ def test_a_second_live_recording_into_a_busy_out_folder_is_refused(pred, tmp_pat
     with folder_lock(tmp_path, "live recording"), pytest.raises(FolderLockedError, match="another live recording"):
         live.run(pred, iter([(0.0, BG, 0)]), out=tmp_path, background=BG, print_every=0, log=lambda m: None)
     assert (tmp_path / "forces.csv").read_text() == "t,fx,fy,fz\n0.0,1,2,3\n"  # the holder's file untouched
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".lock", "forces.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["forces.csv"]  # nothing new; the released lock removed
 
 
 class _Usage:
@@ -165,6 +170,10 @@ def test_a_full_disk_stops_the_recording_with_whole_rows(pred, tmp_path, monkeyp
     assert s["stopped"] == "disk_full" and "annotated.mp4: no space left" in s["error"]
     got = rows(tmp_path / "forces.csv")
     assert len(got) == 4 and all(len(r) == 6 and None not in r.values() for r in got)
+    # issue 61: the error says what was kept, and that is so (the video plays)
+    assert s["error"].endswith("; kept forces.csv (4 rows) and annotated.mp4 (3 frames)"), s["error"]
+    assert cv2.VideoCapture(str(tmp_path / "annotated.mp4")).get(cv2.CAP_PROP_FRAME_COUNT) == 3
+    assert not (tmp_path / ".lock").exists()  # issue 61: the released lock leaves no file
 
 
 def test_a_failed_csv_write_leaves_whole_rows(tmp_path):
@@ -219,6 +228,9 @@ def test_cli_full_disk_and_nothing_to_predict_are_one_error_line(ckpt, tmp_path,
     assert code == 1 and len([e for e in err if e.startswith("error:")]) == 1
     assert "annotated.mp4: no space left on the device" in err[-1]
     assert len(rows(tmp_path / "out" / "forces.csv")) == 1  # the row before the video frame that did not fit
+    # issue 61: the video had no frame (258 bytes cv2 cannot open): removed, and the error line says so
+    assert err[-1].endswith("; kept forces.csv (1 row); annotated.mp4 could not be played and was removed"), err
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["forces.csv"]
     monkeypatch.undo()
     video = tmp_path / "two.mp4"
     w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (W, H))
@@ -285,3 +297,108 @@ def test_a_bad_frame_size_in_model_json_is_one_error_naming_it(ckpt, tmp_path, c
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "Traceback" not in err[0], err
     assert 'model.json: "frame_size" is' in err[0] and "expected [height, width]" in err[0]
+
+
+class _BrokenWriter:
+    """cv2.VideoWriter whose index never reaches the disk (a disk that fills at release): cv2 says nothing."""
+
+    def __init__(self, path, *args):
+        self.path = path
+
+    def write(self, frame):
+        pass
+
+    def release(self):
+        with open(self.path, "wb") as f:
+            f.write(b"\0" * 258)
+
+
+def test_a_video_that_cannot_be_completed_is_removed_and_named(pred, tmp_path, monkeypatch):
+    """Issue 61 (13): a recording whose annotated.mp4 cv2 cannot open is not a recording: removed, the run ends
+    with an error saying so and what was kept."""
+    from ffjax.live import loop as live_loop
+
+    monkeypatch.setattr(live_loop.cv2, "VideoWriter", _BrokenWriter)
+    stream = ((i / 10, BG, i) for i in range(3))
+    s = live.run(pred, stream, out=tmp_path, background=BG, print_every=0, log=lambda m: None)
+    assert s["stopped"] == "disk_full" and s["error"] == (
+        f"{tmp_path / 'annotated.mp4'}: could not be completed (is the disk full?); kept forces.csv (3 rows); "
+        "annotated.mp4 could not be played and was removed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["forces.csv"] and len(rows(tmp_path / "forces.csv")) == 3
+
+
+class FakeVideo(FakeCapture):
+    """A video file's capture: `frames` frames in its header, the script's reads ("f" a frame, "d" a frame that
+    fails to decode), then every read fails (the file's end)."""
+
+    def __init__(self, script, frames):
+        super().__init__(script)
+        self.frames = frames
+
+    def get(self, prop):
+        return {cv2.CAP_PROP_FPS: 25.0, cv2.CAP_PROP_FRAME_COUNT: float(self.frames)}[prop]
+
+
+def test_a_video_that_ends_early_says_how_many_frames_were_read(ckpt, tmp_path, monkeypatch, capsys):
+    """Issue 61 (13): a damaged video decoding 12 of 21 frames ended rc 0, without a word about the rest. A frame
+    that fails to decode is skipped (the decoder goes on with the next); a file that ends before its header's
+    frame count is an error (exit 1) saying how many of how many were read, with the forces of those kept."""
+    store.save_bundle(tmp_path / "model", ckpt)
+    video = tmp_path / "damaged.mp4"
+    video.write_bytes(b"stands in for a video")
+    fake = {str(video): lambda: FakeVideo("f" * 9 + "d" + "f" * 3, 21)}
+    monkeypatch.setattr(live.sources.cv2, "VideoCapture", lambda p: fake[p]() if p in fake else REAL_CAPTURE(p))
+    code = cli.run(live.main, ["--checkpoint", str(tmp_path / "model"), "--video", str(video), "--headless",
+                               "--print-every", "0", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and err == [f"error: --video {video}: only 12 of its 21 frames could be decoded (the file is "
+                                 "damaged or cut short); kept forces.csv (12 rows) and annotated.mp4 (12 frames)"]
+    assert [r["frame"] for r in rows(tmp_path / "out" / "forces.csv")] == [str(i) for i in range(12)]
+    fake[str(video)] = lambda: FakeVideo("f" * 21, 21)
+    assert live.main(["--checkpoint", str(tmp_path / "model"), "--video", str(video), "--headless", "--print-every",
+                      "0"]) == 0  # whole: as before
+
+
+def test_sigterm_stops_the_live_loop_like_ctrl_c(ckpt, tmp_path, monkeypatch):
+    """Issue 61 (16): SIGTERM (a supervisor stopping the robot's tools) ended the process at once: a 0-byte .lock
+    and an annotated.mp4 without its index stayed. Now the loop stops as on Ctrl-C: both files closed, the lock
+    file removed."""
+    class Stopped(FakeCapture):
+        def read(self):
+            if len(self.script) == 2:
+                os.kill(os.getpid(), signal.SIGTERM)
+            return super().read()
+
+    store.save_bundle(tmp_path / "model", ckpt)
+    monkeypatch.setattr(live.sources.cv2, "VideoCapture", lambda i: REAL_CAPTURE(i) if isinstance(i, str) else
+                        Stopped("f" * 6))
+    code = live.main(["--checkpoint", str(tmp_path / "model"), "--camera", "0", "--headless", "--out",
+                      str(tmp_path / "out"), "--warmup", "0", "--bg-frames", "1", "--print-every", "0"])
+    assert code == 0 and sorted(p.name for p in (tmp_path / "out").iterdir()) == ["annotated.mp4", "forces.csv"]
+    n = len(rows(tmp_path / "out" / "forces.csv"))
+    assert 3 <= n <= 5 and cv2.VideoCapture(str(tmp_path / "out" / "annotated.mp4")).get(cv2.CAP_PROP_FRAME_COUNT) == n
+
+
+def test_a_lock_released_between_open_and_flock_is_taken_afresh(tmp_path, monkeypatch):
+    """Issue 61 (16): the lock file is removed on release. A process that opened it just before (and then got the
+    flock of the unlinked file) must not believe it holds the folder: it locks the file the path names now, so a
+    third process is refused."""
+    from ffjax import files
+    from ffjax.errors import FolderLockedError
+
+    holder = files.folder_lock(tmp_path, "live recording")
+    holder.__enter__()
+    flock, released = files.fcntl.flock, []
+
+    def holder_releases_first(f, op):
+        if not released:  # the next process has opened the holder's file; the holder releases (and unlinks) it
+            released.append(True)
+            holder.__exit__(None, None, None)
+        return flock(f, op)
+
+    monkeypatch.setattr(files.fcntl, "flock", holder_releases_first)
+    with files.folder_lock(tmp_path, "live recording"):
+        with pytest.raises(FolderLockedError, match="in use by another live recording"):
+            with files.folder_lock(tmp_path, "live recording"):
+                pass
+    assert released and list(tmp_path.iterdir()) == []
