@@ -17,6 +17,7 @@ from typing import Any
 
 from configs import base
 from configs.checks import is_num, keys, rules
+from ffjax.sim.seeds import MAX_SEED
 
 PRESETS = ("smoke", "quick", "full", "gpu", "paper")
 
@@ -165,9 +166,17 @@ def _cross_checks(cfg: dict) -> list[str]:
     if is_num(fz_min) and is_num(fz_max) and fz_min >= fz_max:
         errs.append(f"data.fz_min ({fz_min}) must be below data.fz_max ({fz_max}): Fz is sampled between them")
     render = _lookup(cfg, "data.render_size")
-    if isinstance(render, (list, tuple)) and all(is_num(v) for v in render) and min(render) < MIN_RENDER:
+    if isinstance(render, (list, tuple)) and all(is_num(v) for v in render) and 1 <= min(render) < MIN_RENDER:
         errs.append(f"data.render_size ({tuple(render)}) must be at least {MIN_RENDER} px on each side: smaller, "
                     "a contact covers less than a pixel and the depth targets are all zero")
+    seed, n = _lookup(cfg, "seed"), _lookup(cfg, "seeds")
+    if is_num(seed) and is_num(n) and seed + n - 1 > MAX_SEED >= seed:
+        errs.append(f"seed ({seed}) + seeds ({n}) - 1 must be at most {MAX_SEED}: the experiments train seeds seed, "
+                    f"seed + 1, ..., each a config seed; lower seed or seeds")
+    steps, corpus = _lookup(cfg, "pretrain.steps"), _lookup(cfg, "pretrain.corpus_size")
+    if is_num(steps) and is_num(corpus) and steps > 0 and corpus < 1:
+        errs.append(f"pretrain.corpus_size ({corpus}) must be at least 1 for pretrain.steps ({steps}) > 0: the DINO "
+                    "steps draw their images from it (pretrain.steps=0 pretrains nothing)")
     dim, heads = _lookup(cfg, "model.vit.dim"), _lookup(cfg, "model.vit.heads")
     if is_num(dim) and is_num(heads) and heads > 0 and dim % heads:
         errs.append(f"model.vit.dim ({dim}) must be divisible by model.vit.heads ({heads})")

@@ -8,23 +8,42 @@ fills the key with `before=`: the value the code used then (the default where no
 the keys added after runs and datasets were saved: caches hash configs without them while they hold that value.
 """
 
-from configs.checks import INT, NN, NN_INT, POS, POS_INT, PROB, SCALE, Key, boolean, choice, defaults, num, seq
-from ffjax.sim import mechanics
-from ffjax.sim.sensors import SENSOR_NAMES
+from configs.checks import NN, NN_INT, POS, POS_INT, PROB, SCALE, Key, because, boolean, choice, defaults, num, seq
+from ffjax.sim import INDENTERS, mechanics, seeds
+from ffjax.sim.sensors import PRESETS, SENSOR_NAMES
 
 _FORCE3 = seq(num(), length=3, optional=True)
+# px, a side of a rendered frame or of the model input: twice the longest native frame side of the sensors (GelSight
+# Mini 240x320, DIGIT 320x240); finer shows nothing their cameras resolve, and memory grows with the area
+MAX_PX = 2 * max(max(s.native_size) for s in PRESETS.values())
+_PX = because(num(1, MAX_PX, integer=True), f"{MAX_PX} px is twice the longest native frame side of the sensors "
+                                            "(finer shows nothing their cameras resolve)")
+
+
+def _presses(shapes: int):
+    """Presses per shape of a simulated split of `shapes` shapes: at least one (an empty split fails where it is
+    read), few enough for the split's block of render seeds (ffjax.sim.seeds)."""
+    return because(num(1, seeds.BLOCK // shapes, integer=True),
+                   f"a simulated split holds 1 to {seeds.BLOCK} presses (its block of render seeds)")
+
+
+_PER_INDENTER, _PER_OBJECT = _presses(len(INDENTERS)), _presses(1)
+
 
 SPEC = {
-    "seed": Key(0, INT),  # root of every random stream: data, init, shuffling, augmentation
+    # root of every random stream: data, init, shuffling, augmentation
+    "seed": Key(0, because(num(0, seeds.MAX_SEED, integer=True),
+                           f"split k of config seed s renders with the seeds from (s * {seeds.MAX_SPLITS} + k) * "
+                           f"{seeds.BLOCK} on, which must fit in int64 (ffjax.sim.seeds)")),
     "seeds": Key(1, POS_INT),  # how many seeds (seed, seed + 1, ...) the experiments run unless told otherwise
     "data": {
-        "render_size": Key((48, 64), seq(POS_INT, length=2)),  # (H, W) of the simulated frame; 240x320 is native
-        "input_size": Key(64, POS_INT),  # square model input after pad + resize
-        "train_per_indenter": Key(600, POS_INT),  # training presses per indenter (10 indenters)
-        "val_per_indenter": Key(60, NN_INT),  # validation presses per indenter
-        "unseen_per_object": Key(100, NN_INT),  # Table I: presses per unseen object
-        "sensor_test_per_indenter": Key(30, NN_INT),  # Table II: presses per indenter on every sensor
-        "calib_samples": Key(100, POS_INT),  # Table III: calibration presses per sensor (the paper's ~100)
+        "render_size": Key((48, 64), seq(_PX, length=2)),  # (H, W) of the simulated frame; 240x320 is native
+        "input_size": Key(64, _PX),  # square model input after pad + resize
+        "train_per_indenter": Key(600, _PER_INDENTER),  # training presses per indenter (10 indenters)
+        "val_per_indenter": Key(60, _PER_INDENTER),  # validation presses per indenter
+        "unseen_per_object": Key(100, _PER_OBJECT),  # Table I: presses per unseen object
+        "sensor_test_per_indenter": Key(30, _PER_INDENTER),  # Table II: presses per indenter on every sensor
+        "calib_samples": Key(100, _PER_OBJECT),  # Table III: calibration presses per sensor (the paper's ~100)
         # sensor of the train, val and unseen splits
         "train_sensor": Key("mini-1-gel1", choice(*SENSOR_NAMES), late=True),
         "fz_min": Key(0.05, NN, late=True),  # N; Fz is stratified over [fz_min, fz_max] per shape
@@ -121,7 +140,7 @@ SPEC = {
         "init_layerscale": Key(0.1, NN),  # ViT LayerScale at the start of pretraining (1e-5 never leaves uniform)
         "head_bn": Key(True, boolean),  # BatchNorm in the head MLP (without it the teacher stays uniform)
         "local_crops": Key(4, NN_INT),  # multi-crop: local crops per image beside the 2 global ones
-        "local_size": Key(32, POS_INT),  # px
+        "local_size": Key(32, _PX),  # px
         "global_scale": Key((0.4, 1.0), SCALE),  # area fraction range of a global crop
         "local_scale": Key((0.1, 0.4), SCALE),  # area fraction range of a local crop
         "student_temp": Key(0.1, POS),

@@ -87,6 +87,15 @@ def num(lo=None, hi=None, lo_open=False, hi_open=False, integer=False, optional=
     return check
 
 
+def because(check: Check, why: str) -> Check:
+    """`check`, its refusal followed by `why` (where its bound comes from)."""
+    def explained(v):
+        err = check(v)
+        return err and f"{err}: {why}"
+
+    return explained
+
+
 def seq(item: Check, length=None, min_len=1, ordered=False, optional=False) -> Check:
     """A list/tuple of `length` (or >= min_len) items each passing `item`; `ordered`: lo <= hi."""
     def check(v):

@@ -96,7 +96,7 @@ def default_workers() -> int:
 def workers(ap, args) -> int:
     """--workers, else default_workers()."""
     if args.workers is not None and args.workers < 1:
-        ap.error("--workers must be at least 1")
+        ap.error(f"--workers must be at least 1, got {args.workers} (leave it out for the default)")
     return args.workers or default_workers()
 
 
@@ -104,6 +104,10 @@ def config_from_args(ap, args) -> dict:
     """The validated config of --preset and --set; a bad key or value is a usage error (exit 2). Says which
     preset runs and what it costs (stderr), before any work."""
     cfg = configs.from_cli(ap, args.preset, args.set)
+    if hasattr(args, "seeds"):  # the count flags too, before --out is made; the experiment's own call repeats it
+        n_seeds(ap, args, cfg)
+    if getattr(args, "workers", None) is not None:
+        workers(ap, args)
     if getattr(args, "out", None) is not None:  # an impossible --out fails now, named, not after the first stage
         from ffjax import cli
 
@@ -116,13 +120,18 @@ def config_from_args(ap, args) -> dict:
 
 
 def n_seeds(ap, args, cfg: dict) -> int:
-    """Seeds per method: --seeds, else the config's `seeds`; written into cfg, so the config a results.json
-    records says how many ran."""
-    n = args.seeds or cfg["seeds"]
-    if n < 1:
-        ap.error("--seeds must be at least 1")
-    cfg["seeds"] = n
-    return n
+    """Seeds per method: --seeds, else the config's `seeds`; written into cfg (and checked there: seed + seeds - 1
+    is a config seed too), so the config a results.json records says how many ran."""
+    if args.seeds is None:
+        return cfg["seeds"]
+    if args.seeds < 1:  # 0 is a value, not "left out": it used to run the preset's count silently
+        ap.error(f"--seeds must be at least 1, got {args.seeds} (leave it out for the config's seeds, {cfg['seeds']})")
+    cfg["seeds"] = args.seeds
+    try:
+        configs.validate(cfg)
+    except configs.ConfigError as e:
+        ap.error(f"--seeds {args.seeds}: {e}")
+    return args.seeds
 
 
 def ablation_folder(ap, given, preset: str) -> Path:

@@ -8,7 +8,9 @@ its code). Ours, an assumption stated wherever numbers are reported: for each ax
 and the headline figure is the mean of nl1_a over the three axes. The range comes from the training
 split (`Stats.force_min/force_max`), never from the split being evaluated, so every test set of one
 model is divided by the same numbers. Shear axes have a much smaller range (~4 N) than Fz (~15 N),
-so equal newton errors weigh more on Fx/Fy; the per-axis MAE in newtons is always reported too.
+so equal newton errors weigh more on Fx/Fy; the per-axis MAE in newtons is always reported too. An axis
+the training labels never vary on (a sensor that records Fz only) has no full scale: its nl1_a is NaN
+(not applicable) and the headline is the mean over the axes that vary.
 """
 
 from __future__ import annotations
@@ -20,17 +22,21 @@ import numpy as np
 
 from ffjax import data
 
-AXES = ("Fx", "Fy", "Fz")
+AXES = data.stats.AXES
 
 
 def normalized_l1(pred, true, force_min, force_max) -> tuple[np.ndarray, float]:
-    """Per-axis normalized L1 in percent (3,) and its mean over axes (the headline number)."""
+    """Per-axis normalized L1 in percent (3,) and its mean over axes (the headline number). An axis the training
+    labels hold constant (a sensor that records Fz only) has no range to divide by: its entry is NaN and the
+    headline is the mean over the axes that vary (its error in newtons stays in mae_newtons)."""
     pred, true = np.asarray(pred, np.float64), np.asarray(true, np.float64)
     span = np.asarray(force_max, np.float64) - np.asarray(force_min, np.float64)
-    if np.any(span <= 0):
-        raise ValueError(f"force range must be positive on every axis, got max - min = {span}")
-    axes = np.mean(np.abs(pred - true), axis=0) / span * 100.0
-    return axes, float(np.mean(axes))
+    if not np.all(span >= 0) or not np.any(span > 0):  # NaN, min above max, or no axis that varies
+        raise ValueError(f"the training force range (max - min = {span} N) must be positive on some axis and "
+                         "negative on none: it is the training labels' (Stats.force_min, force_max)")
+    err = np.mean(np.abs(pred - true), axis=0)
+    axes = np.where(span > 0, err / np.where(span > 0, span, 1.0) * 100.0, np.nan)
+    return axes, float(np.nanmean(axes))
 
 
 def mae_newtons(pred, true) -> np.ndarray:

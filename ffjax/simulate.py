@@ -34,6 +34,8 @@ def main(argv=None) -> int:
                     "data.train_per_indenter=100")
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
+    if args.workers is not None and args.workers < 1:
+        ap.error(f"--workers must be at least 1, got {args.workers} (leave it out for the default)")
     cfg = configs.from_cli(ap, args.preset, args.set)
     batched.use_disk_cache()  # this process's compiled solves, for the next run
     if args.workers is None and batched.on_accelerator():

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 
 from ffjax.data.preprocess import to_unit
+from ffjax.errors import DataError
+
+AXES = ("Fx", "Fy", "Fz")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,6 +39,7 @@ class Stats:
         n = len(source)
         if n == 0:
             raise ValueError(f"cannot compute statistics over an empty split ({source!r})")
+        forces = np.asarray(source.forces, np.float32)
         take = n if max_samples is None or n <= max_samples else max_samples
         s1, s2 = np.zeros(3), np.zeros(3)
         pixels = 0
@@ -53,7 +58,6 @@ class Stats:
             dmin, dmax = min(dmin, float(b["depth"].min())), max(dmax, float(b["depth"].max()))
         mean = s1 / pixels
         std = np.sqrt(np.maximum(s2 / pixels - mean**2, 1e-12))
-        forces = np.asarray(source.forces, np.float32)
         return cls(mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std),
                    depth_min=dmin - eps, depth_max=dmax + eps,
                    force_min=tuple(float(v) for v in forces.min(0)),
@@ -76,6 +80,24 @@ class Stats:
     def force_range(self) -> np.ndarray:
         """max - min per axis (the metric's normalizer)."""
         return np.asarray(self.force_max, np.float32) - np.asarray(self.force_min, np.float32)
+
+
+def check_force_range(source) -> None:
+    """Refuse training labels that never vary (nothing to learn, no range for the metric: DataError naming the
+    split); warn about an axis that never varies (a sensor that records Fz only): the normalized L1 leaves it out
+    (ffjax.metrics). Reads the labels only, so a training run checks them before it writes anything."""
+    where = getattr(source, "csv_path", None) or getattr(source, "path", None) or repr(source)
+    forces = np.asarray(source.forces, np.float32)
+    lo, hi = forces.min(0), forces.max(0)
+    constant = [a for a, l, h in zip(AXES, lo, hi, strict=True) if not h > l]
+    if len(constant) == len(AXES):
+        raise DataError(f"{where}: the training labels hold one force on every row ({', '.join(AXES)} = "
+                        f"{', '.join(f'{v:g}' for v in lo)} N): nothing to learn; give a split whose forces vary "
+                        "(a CSV's FT column, a shard's force array)")
+    if constant:
+        warnings.warn(f"{where}: {' and '.join(constant)} hold one value on every training row: the normalized L1 "
+                      f"leaves {'it' if len(constant) == 1 else 'them'} out (their error in N is still reported)",
+                      stacklevel=2)
 
 
 def source_background(source):

@@ -52,6 +52,7 @@ from ffjax.data.images import write_rgb
 from ffjax.errors import DataError
 from ffjax.files import LOCK_NAME, atomic_write, atomic_write_text, check_writable, folder_lock
 from ffjax.sim import batched
+from ffjax.sim.seeds import render_seeds
 from ffjax.sim.sensors import MINI_NAMES, SENSOR_NAMES, get_sensor, with_pattern_moving
 
 # 2: the camera's patterns stay put, a real Mini's colour balance and fine pattern; 3: the oblique press, F/T noise
@@ -199,8 +200,7 @@ def sample_presses(spec: SplitSpec, cfg: dict) -> dict:
     p = {k: np.concatenate([q[k] for q in parts]) for k in parts[0]}
     order = np.random.default_rng([seed, spec.index, 10**6, VERSION]).permutation(len(p["x_mm"]))
     p = {k: v[order] for k, v in p.items()}
-    # a block of 2**24 render seeds per split and config seed: disjoint across splits
-    p["seed"] = (seed * 4096 + spec.index) * 2**24 + np.arange(len(order), dtype=np.int64)
+    p["seed"] = render_seeds(seed, spec.index, len(order))  # a block of its own per split and config seed
     return p
 
 
@@ -301,11 +301,9 @@ def _stray(folder: Path, count: int) -> list[Path]:
     return sorted(p for p in folder.glob("shard_*.npz") if p.name not in want)
 
 
-def _start_worker(threads: int) -> None:
-    """A worker leaves Ctrl-C to the parent, which stops them all with one line (not one traceback each), and
-    solves `threads` pieces of a batch at once (the cores left to each worker)."""
+def _start_worker() -> None:
+    """A worker leaves Ctrl-C to the parent, which stops them all with one line (not one traceback each)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    batched.THREADS = threads
     batched.use_disk_cache()  # a process that only simulates: the solves' programs from disk after the first run
 
 
@@ -427,8 +425,7 @@ def _generate(cfg: dict, out: Path, force: bool, workers: int | None, progress: 
                 bar.update(_shard_task(t))
         else:
             ctx = multiprocessing.get_context("spawn")  # safe even if the caller already started jax threads
-            pool = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_start_worker,
-                                          initargs=(max(1, batched.threads() // workers),))
+            pool = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_start_worker)
             try:
                 for n in (f.result() for f in cf.as_completed([pool.submit(_shard_task, t) for t in tasks])):
                     bar.update(n)
@@ -450,3 +447,13 @@ def _generate(cfg: dict, out: Path, force: bool, workers: int | None, progress: 
                                "workers": workers}}
     _write_text(manifest_file, json.dumps(manifest, indent=1))
     return manifest
+
+
+if __name__ == "__main__":  # the command line sits above the presets (configs), which the simulator does not import
+    import shlex
+    import sys
+
+    from ffjax import cli
+
+    sys.exit(cli.fail(f"ffjax.sim.dataset has no command line: run python -m ffjax.simulate "
+                      f"{shlex.join(sys.argv[1:])}".rstrip(), cli.USAGE))

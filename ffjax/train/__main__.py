@@ -10,12 +10,14 @@ also be a CSV in the FeelAnyForce release layout (tactile, depth, FT; paths rela
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
 
 import configs
 from ffjax import cli, data, registry, train
+from ffjax.data.sources import is_csv_path
 from ffjax.errors import CheckpointError, WriteError
 from ffjax.sim import dataset
 from ffjax.train import init_weights
@@ -55,6 +57,8 @@ def parse_args(argv=None):
     ap.add_argument("--max-steps", type=int, help="stop after this many steps (checkpointed; --resume goes on)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
+    if args.max_steps is not None and args.max_steps < 1:  # 0 used to run a step anyway and exit 0
+        ap.error(f"--max-steps must be at least 1, got {args.max_steps} (leave it out to train every epoch)")
     args.cfg = configs.from_cli(ap, args.preset, args.overrides)  # a bad --set stops here, before any work
     return args
 
@@ -62,7 +66,9 @@ def parse_args(argv=None):
 def describe(val: dict | None) -> str:
     if not val:
         return "no validation split"
-    axes = ", ".join(f"{a} {v:.2f}%" for a, v in zip(("Fx", "Fy", "Fz"), val["nl1_axes"]))
+    # n/a: an axis the training labels hold constant has no range to normalize by (ffjax.metrics)
+    axes = ", ".join(f"{a} {v:.2f}%" if math.isfinite(v) else f"{a} n/a" for a, v in zip(("Fx", "Fy", "Fz"),
+                                                                                         val["nl1_axes"]))
     mae = ", ".join(f"{a} {v:.3f}" for a, v in zip(("Fx", "Fy", "Fz"), val["mae_n"]))
     return f"normalized L1 {val['nl1']:.2f}% ({axes}); MAE N: {mae}; n={val['n']}"
 
@@ -118,9 +124,9 @@ def _data(args):
     before any work), a dataset folder, or the preset's simulated dataset (generated once); an exit code when
     the arguments are refused."""
     data_dir = args.data
-    if args.val and not (data_dir and str(data_dir).endswith(".csv")):
+    if args.val and not (data_dir and is_csv_path(data_dir)):
         return cli.fail("--val goes with --data TRAIN.csv", cli.USAGE)
-    if data_dir and str(data_dir).endswith(".csv"):
+    if data_dir and is_csv_path(data_dir):
         try:
             data_dir = {k: data.open_split(v, validate=True, skip_bad_rows=args.skip_bad_rows) if v else None
                         for k, v in (("train", data_dir), ("val", args.val))}

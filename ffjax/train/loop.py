@@ -23,6 +23,8 @@ import dataclasses
 import json
 import math
 import os
+import signal
+import threading
 import time
 import warnings
 from collections.abc import Callable
@@ -51,12 +53,19 @@ def with_output_affine(cfg: dict, stats) -> dict:
     """Fill the regressor's fixed output scale/shift from the training force range (a copy of cfg).
 
     Only when cfg model.regressor.normalize_output is set and no scale is given yet; model.json then
-    records the numbers, so a loaded checkpoint rebuilds the same model.
+    records the numbers, so a loaded checkpoint rebuilds the same model. An axis the labels hold constant (a
+    sensor that records Fz only) is scaled like the mean of the axes that vary: at output_affine's floor scale the
+    normalized force loss (1 / scale per axis, mean 1) would leave the axes that vary almost no weight.
     """
     rc = cfg["model"]["regressor"]
     if not rc["normalize_output"] or rc["out_scale"] is not None:
         return cfg
-    cfg = {**cfg, "model": {**cfg["model"], "regressor": {**rc, **output_affine(stats.force_min, stats.force_max)}}}
+    lo, hi = (np.asarray(v, np.float64) for v in (stats.force_min, stats.force_max))
+    flat = ~(hi > lo)
+    if flat.any() and not flat.all():  # labels where no axis varies: check_force_range refuses them
+        half = float(np.mean((hi - lo)[~flat])) / 2
+        lo, hi = np.where(flat, lo - half, lo), np.where(flat, hi + half, hi)
+    cfg = {**cfg, "model": {**cfg["model"], "regressor": {**rc, **output_affine(lo, hi)}}}
     return cfg
 
 
@@ -114,6 +123,7 @@ def _open_run(cfg, spec, data, run_dir: Path, resume, init_backbone, init_variab
     if steps_per_epoch == 0:  # refused before anything is written into the run folder
         raise ValueError(f"train split has {len(train_src)} records, fewer than one batch of {bs}: "
                          "lower train.batch_size")
+    fdata.stats.check_force_range(train_src)  # labels that never vary: refused before the run folder is touched
     ckpt = Checkpointer(run_dir)
     restoring = ckpt.latest_step() is not None
     if restoring and not resume:
@@ -271,7 +281,8 @@ class _Run:
                     self.end_epoch(done)
                 if save:
                     self.meta["elapsed_s"] = self.elapsed0 + time.perf_counter() - self.t0
-                    self.ckpt.save_latest(done, self.state, self.data.it.get_state(), self.meta)
+                    with _ctrl_c_held():
+                        self.ckpt.save_latest(done, self.state, self.data.it.get_state(), self.meta)
                 if max_steps is not None and done >= max_steps:
                     break
             self.flush()
@@ -280,10 +291,11 @@ class _Run:
             # replace the message that says what happened, so they are dropped here
             if self.bar is not None:
                 self.bar.close()
-            with contextlib.suppress(Exception):
-                self.ckpt.wait()
-            with contextlib.suppress(Exception):
-                self.ckpt.close()
+            with _ctrl_c_held():  # Ctrl-C: the checkpoint being written is finished, not torn
+                with contextlib.suppress(Exception):
+                    self.ckpt.wait()
+                with contextlib.suppress(Exception):
+                    self.ckpt.close()
             raise
 
     def flush(self, keep: int = 0) -> None:
@@ -341,8 +353,9 @@ class _Run:
         meta = self.meta
         if meta["best_val_loss"] is None or score < meta["best_val_loss"]:
             meta.update(best_val_loss=score, best_step=done, best_epoch=epoch)
-            self.ckpt.save_best(done, self.state, {"epoch": epoch, "step": done, "val_loss": score,
-                                                   "val": meta["last_val"]})
+            with _ctrl_c_held():
+                self.ckpt.save_best(done, self.state, {"epoch": epoch, "step": done, "val_loss": score,
+                                                       "val": meta["last_val"]})
         self.log.epoch(row)
         meta["eval_s"] = meta.get("eval_s", 0.0) + time.perf_counter() - t_eval
 
@@ -359,13 +372,14 @@ class _Run:
         """Wait for the last saves, write summary.json; the summary (with the final state) is returned."""
         if self.bar is not None:
             self.bar.close()
-        try:
-            self.ckpt.wait()  # a pending async save must finish (or report its error) before the run counts as done
-        except BaseException:
-            with contextlib.suppress(Exception):
-                self.ckpt.close()
-            raise
-        self.ckpt.close()
+        with _ctrl_c_held():
+            try:
+                self.ckpt.wait()  # a pending async save must finish (or report its error) before the run is done
+            except BaseException:
+                with contextlib.suppress(Exception):
+                    self.ckpt.close()
+                raise
+            self.ckpt.close()
         meta, stats = self.meta, self.stats
         final_step = int(jax.device_get(self.state.step))
         summary = {
@@ -394,6 +408,26 @@ class _Run:
         atomic_write_text(self.run_dir / SUMMARY_NAME, json.dumps(summary, indent=2))
         summary["state"] = self.state
         return summary
+
+
+@contextlib.contextmanager
+def _ctrl_c_held():
+    """Hold Ctrl-C back while orbax saves or waits for a save, then raise it (KeyboardInterrupt): raised inside
+    orbax (a save's coroutines built but not run, a finalize thread half-joined) it left a step half-listed and
+    echoes after the "interrupted" line ("coroutine ... was never awaited", "Save Finalize thread failed"). Only
+    where Ctrl-C raises KeyboardInterrupt: the main thread under Python's own handler."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield
+        return
+    held = []
+    signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if held:
+        raise KeyboardInterrupt
 
 
 def _diff(a, b, prefix: str = "") -> list[str]:
