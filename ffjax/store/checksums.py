@@ -60,7 +60,8 @@ class UnverifiedWarning(UserWarning):
 def warn_unverified(path, missing: list[str], what: str, how: str) -> None:
     """Warn that `path` records none of the digests `missing`, so `what` ("the weights are") is not verified, and
     `how` makes it verified again. Once per load: the loaders call it where the file is read."""
-    path = str(path).encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")  # a message is text
-    warnings.warn(f"{path} records no {' and no '.join(missing)} (written before ffjax recorded digests, or a digest "
-                  f"was deleted): {what} not verified, so an edit would go unnoticed. To make it verified again, "
-                  f"{how}", UnverifiedWarning, stacklevel=3)
+    text = (f"{path} records no {' and no '.join(missing)} (written before ffjax recorded digests, or a digest was "
+            f"deleted): {what} not verified, so an edit would go unnoticed. To make it verified again, {how}")
+    # a path's undecodable bytes shown escaped: the message is text (a log, a test runner's report must encode it)
+    warnings.warn(text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace"), UnverifiedWarning,
+                  stacklevel=3)
