@@ -16,7 +16,9 @@ MAX_SEED = 2**63 // (MAX_SPLITS * BLOCK) - 1  # the last config seed whose last 
 
 def render_seeds(seed: int, index: int, n: int) -> np.ndarray:
     """The n render seeds (int64) of split `index` of config seed `seed`."""
-    if not 0 <= seed <= MAX_SEED or not 0 <= index < MAX_SPLITS or not 0 <= n <= BLOCK:
+    # an index past MAX_SPLITS is a stream no dataset's split uses (the benchmark's): any that fits int64
+    if not 0 <= seed <= MAX_SEED or index < 0 or (seed * MAX_SPLITS + index + 1) * BLOCK > 2**63 \
+            or not 0 <= n <= BLOCK:
         raise ValueError(f"no render seed block for config seed {seed}, split {index}, {n} presses: the seed must "
-                         f"be in [0, {MAX_SEED}], at most {MAX_SPLITS} splits of {BLOCK} presses")
+                         f"be in [0, {MAX_SEED}], a split hold at most {BLOCK} presses, and the block fit in int64")
     return (seed * MAX_SPLITS + index) * BLOCK + np.arange(n, dtype=np.int64)
