@@ -60,8 +60,9 @@ def _oblique_on_a_mini(shape: str, **how):
 
     press = importlib.import_module("ffjax.sim.press")
     sensor = sim.get_sensor("mini-1")
-    dy, dx = sensor.mm_per_px(press._solve_size(sensor))
-    req = press._request(sim.get_shape(shape), sensor, (0.0, 0.0, 8.0), 0.0, 0.0, 20.0, (7.0, 3.0), 0)
+    ssize = press.solve_size(sensor, None)  # native frames: the finest solve
+    dy, dx = sensor.mm_per_px(ssize)
+    req = press._request(sim.get_shape(shape), sensor, ssize, (0.0, 0.0, 8.0), 0.0, 0.0, 20.0, (7.0, 3.0), 0)
     gel = sensor.gel
     return mechanics.oblique_batch([req.h_s], (dx + dy) / 2, gel.shear_mpa, gel.thickness_mm, gel.friction, [8.0],
                                    [np.tan(np.radians([7.0, 3.0]))], **how)[1][0]

@@ -5,7 +5,7 @@ import pytest
 
 from ffjax import sim
 from ffjax.sim import mechanics
-from ffjax.sim.press import _solve_size
+from ffjax.sim.press import solve_size
 
 
 def test_named_shapes():
@@ -16,11 +16,12 @@ def test_named_shapes():
         assert s.height.min() == 0 and s.name == name
 
 
+@pytest.mark.parametrize("frame", [(24, 32), None])  # the smoke preset's coarse solve and the finest one
 @pytest.mark.parametrize("key", ["mini-1-gel1", "mini-2-gel2", "mini-3-gel3", "digit"])
-def test_every_shape_reaches_15_newtons(key):
-    """Fz up to 15 N fits in every gel for every body, also off-centre and tilted."""
+def test_every_shape_reaches_15_newtons(key, frame):
+    """Fz up to 15 N fits in every gel for every body, also off-centre and tilted, on every solve grid."""
     sensor = sim.get_sensor(key)
-    size = _solve_size(sensor)
+    size = solve_size(sensor, frame)
     dy, dx = sensor.mm_per_px(size)
     for name in sim.INDENTERS + sim.UNSEEN_OBJECTS:
         h = sim.body_heights(sim.get_shape(name), sensor, size, 4.0, -3.0, 30.0, (3.0, -3.0))

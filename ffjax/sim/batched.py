@@ -35,8 +35,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import os
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -72,30 +70,6 @@ def max_batch() -> int:
 def _solve_pieces(call, n: int) -> list:
     """[device_get(call(a, b, m)) for each piece (a, b, m) of n presses], in order, from this thread."""
     return [jax.device_get(call(*piece)) for piece in _pieces(n)]
-
-
-def use_disk_cache() -> Path | None:
-    """Keep compiled programs on disk (JAX's persistent compilation cache), so a new process (a dataset worker,
-    the next command) loads the solves' programs instead of compiling them again (0.1-1 s each, ~130 a dataset):
-    in $FFJAX_CACHE/xla, else ~/.cache/ffjax/xla. Left alone when the user has set a cache directory already, or
-    FFJAX_CACHE is "off"; returns the directory in use. For processes that only simulate (`ffjax.simulate`, a
-    dataset's workers): jax's cache is process-wide, and writing some training programs to it crashed jax 0.10
-    (a segfault in the cache's put_executable_and_time, the smoke pipeline's benchmark step)."""
-    if jax.config.jax_compilation_cache_dir:
-        return Path(jax.config.jax_compilation_cache_dir)
-    root = os.environ.get("FFJAX_CACHE", str(Path.home() / ".cache" / "ffjax"))
-    if root == "off":
-        return None
-    folder = Path(root) / "xla"
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError:  # a read-only home: compile in every process, as without the cache
-        return None
-    jax.config.update("jax_compilation_cache_dir", str(folder))
-    # jax keeps only programs that took >= 1 s to compile; a solve compiles in 0.1-1 s on a CPU, so none was kept
-    # and every process compiled its ~130 programs again (the quick dataset's 2 workers: 133 s of compiling)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    return folder
 
 
 @contextlib.contextmanager
@@ -207,10 +181,11 @@ def _normal_one(hb, fz, kernel, eps, psi, cell, thickness, tol, outer_tol, max_i
     return _masked_mean(hb + soft, on, jnp.sum(on)), u, p, it
 
 
-@functools.lru_cache(maxsize=32)
-def _normal_program(cell: float, thickness: float, tol: float, outer_tol: float, max_iter: int, refuse: float,
-                    stiffening: bool):
-    def run(hb, fz, kernel, eps, psi):
+@functools.lru_cache(maxsize=2)
+def _normal_program(stiffening: bool):
+    """The batch's normal solve; the cell, the thickness and the tolerances are arguments, not constants, so every
+    gel on a grid shares one compiled program."""
+    def run(hb, fz, kernel, eps, psi, cell, thickness, tol, outer_tol, max_iter, refuse):
         one = lambda h, f: _normal_one(h, f, kernel, eps, psi, cell, thickness, tol, outer_tol,  # noqa: E731
                                        max_iter, refuse, stiffening)
         return jax.vmap(one)(hb, fz)
@@ -282,10 +257,12 @@ def _apply(p, kernel):
 
 def _normal_grid(hb, fz, layer: Layer, kernel, thickness, eps, psi, refuse_above, tol, outer_tol, max_iter) -> dict:
     """`normal` on the grid of hb with `kernel`: the layer's own (its whole grid) or a window's."""
-    run = _normal_program(float(layer.dx) ** 2, float(thickness), float(tol), float(outer_tol), int(max_iter),
-                          float(refuse_above), eps is not None)
+    run = _normal_program(eps is not None)
     table = tuple(jnp.asarray(np.zeros(2) if t is None else t, jnp.float32) for t in (eps, psi))
-    parts = _solve_pieces(lambda a, b, m: run(_padded(hb[a:b], m), _padded(fz[a:b], m), kernel, *table), len(hb))
+    scalars = (*(np.float32(v) for v in (float(layer.dx) ** 2, thickness, tol, outer_tol)), np.int32(max_iter),
+               np.float32(refuse_above))
+    parts = _solve_pieces(lambda a, b, m: run(_padded(hb[a:b], m), _padded(fz[a:b], m), kernel, *table, *scalars),
+                          len(hb))
     return _joined(parts, len(hb), ("delta", "u", "p", "iterations"))
 
 
@@ -350,9 +327,8 @@ def _stick_fields(held, t, hold, surface):
     return jnp.where(held, at_hold, _coupled_apply(surface, t)), jnp.sum(at_hold[:2] * on, (-2, -1)) / jnp.sum(on)
 
 
-@functools.lru_cache(maxsize=32)
-def _traction_program(cell: float, tol: float, max_iter: int):
-    return jax.jit(jax.vmap(lambda h, f, a: _stick_traction(h, f, a, cell, tol, max_iter)))
+# the cell and the tolerance are arguments: every gel on a grid shares the program
+_traction_program = jax.jit(jax.vmap(_stick_traction, in_axes=(0, 0, 0, None, None, None)))
 
 
 @functools.lru_cache(maxsize=32)
@@ -402,12 +378,13 @@ def stick(held: np.ndarray, force: np.ndarray, layer: Layer, depths=None, tol: f
     groups = [(0, np.arange(len(held)))] if windows is None else _groups(windows)
     solved: list = [None] * len(held)  # each press's traction: (on its window, the window) or (the grid, None)
     iterations = np.empty(len(held), np.int32)
-    run = _traction_program(float(layer.dx) ** 2, float(tol), int(max_iter))
+    scalars = (np.float32(float(layer.dx) ** 2), np.float32(tol), np.int32(max_iter))
     for side, idx in groups:
         h = np.stack([_into_window(held[i], w, False) for i, w in zip(idx, windows[idx])]) if side else held[idx]
         f, d = force[idx], depths[idx]
-        parts = _solve_pieces(lambda a, b, m: run(_padded(h[a:b], m), _padded(f[a:b], m),  # noqa: B023
-                                                  _hold_kernels(layer, side, _padded(d[a:b], m))), len(idx))  # noqa: B023
+        parts = _solve_pieces(lambda a, b, m: _traction_program(  # noqa: B023
+            _padded(h[a:b], m), _padded(f[a:b], m), _hold_kernels(layer, side, _padded(d[a:b], m)),  # noqa: B023
+            *scalars), len(idx))
         r = _joined(parts, len(idx), ("t", "iterations"))
         iterations[idx] = r["iterations"]
         for t, i in zip(r["t"], idx):

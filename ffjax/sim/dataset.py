@@ -47,7 +47,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from ffjax import sim
+from ffjax import compile_cache, sim
 from ffjax.data.images import write_rgb
 from ffjax.errors import DataError
 from ffjax.files import LOCK_NAME, atomic_write, atomic_write_text, check_writable, folder_lock
@@ -56,8 +56,9 @@ from ffjax.sim.seeds import render_seeds
 from ffjax.sim.sensors import MINI_NAMES, SENSOR_NAMES, get_sensor, with_pattern_moving
 
 # 2: the camera's patterns stay put, a real Mini's colour balance and fine pattern; 3: the oblique press, F/T noise
-# on the labels, the moving share of the fixed pattern a key (issue 32)
-VERSION = 3
+# on the labels, the moving share of the fixed pattern a key (issue 32); 4: the force solve on the frame's grid
+# (press.solve_size), no longer a fixed quarter of the native resolution
+VERSION = 4
 # Generation knobs (cfg["data"]): every one decides the bytes on disk
 GEN_KEYS = ("render_size", "train_per_indenter", "val_per_indenter", "unseen_per_object",
             "sensor_test_per_indenter", "calib_samples", "fz_max", "shear_max", "shard_size", "fz_min",
@@ -304,7 +305,7 @@ def _stray(folder: Path, count: int) -> list[Path]:
 def _start_worker() -> None:
     """A worker leaves Ctrl-C to the parent, which stops them all with one line (not one traceback each)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    batched.use_disk_cache()  # a process that only simulates: the solves' programs from disk after the first run
+    compile_cache.enable()  # a worker loads what the parent or an earlier run compiled
 
 
 def _shard_task(args) -> int:

@@ -61,16 +61,18 @@ def soften(v, thickness: float):
     return np.where(v <= 0, v, thickness * np.interp(v / thickness, _PSI, _EPS))
 
 
-def _fast_len(n: int) -> int:
-    """The smallest 5-smooth integer >= n (FFT sizes with only factors 2, 3, 5 are the fast ones)."""
-    while True:
-        k = n
-        for f in (2, 3, 5):
-            while k % f == 0:
-                k //= f
-        if k == 1:
-            return n
-        n += 1
+# The padded grids' sides: few (each a compiled program), 5-smooth (fast FFTs), so gels of other thicknesses and
+# cells mostly land on a grid already compiled for
+GRID_SIDES = (32, 40, 48, 64, 80, 96, 120, 128, 160, 192, 240, 256, 320, 384, 480, 512, 640, 768, 960, 1024, 1280,
+              1536, 1920, 2048, 2560)
+
+
+def grid_side(n: int) -> int:
+    """The smallest of GRID_SIDES >= n (a side past the last is refused: no sensor's pad comes near it)."""
+    for side in GRID_SIDES:
+        if side >= n:
+            return side
+    raise ValueError(f"a solve grid of {n} cells a side is past the largest supported ({GRID_SIDES[-1]})")
 
 
 @functools.lru_cache(maxsize=64)  # the pretraining corpus cycles through 24 randomized gels
@@ -80,10 +82,10 @@ def _layer(shape: tuple[int, int], dx: float, thickness: float, shear_mpa: float
 
 def _padded_layer(size: tuple[int, int], mm_per_px: float, thickness: float, shear_mpa: float):
     """(margin m, Layer) for a pad grid of `size` with SOLVE_MARGIN_T thicknesses of free gel around it
-    (a little more, to an FFT-friendly size); the pad sits at [m:m+H, m:m+W]."""
+    (a little more, to one of GRID_SIDES); the pad sits at [m:m+H, m:m+W]."""
     H, W = size
     m = int(np.ceil(SOLVE_MARGIN_T * thickness / mm_per_px))
-    return m, _layer((_fast_len(H + 2 * m), _fast_len(W + 2 * m)), float(mm_per_px), float(thickness),
+    return m, _layer((grid_side(H + 2 * m), grid_side(W + 2 * m)), float(mm_per_px), float(thickness),
                      float(shear_mpa))
 
 

@@ -32,11 +32,14 @@ def _grid(sensor: Sensor, size: tuple[int, int]):
     return optics.grid(sensor, size)
 
 
-def _solve_size(sensor: Sensor) -> tuple[int, int]:
-    """Fixed grid for the force solve (quarter native resolution, ~0.25 mm: finer changes the approach by
-    < 3%), so the force-depth relation does not depend on the render size."""
-    h, w = sensor.native_size
-    return h // 4, w // 4
+def solve_size(sensor: Sensor, size) -> tuple[int, int]:
+    """The force solve's grid for frames of `size`: the frame's own pixels, never finer than a quarter of the
+    native resolution (~0.3 mm on a Mini, where a finer grid no longer changes a press's shear or approach by a
+    percent). A coarser frame cannot show detail a finer solve would add, so its solve costs what the frame
+    resolves; docs/simulator.md states what each grid gives away against a 2x-finer one, shape by shape."""
+    h, w = render_size_of(sensor, size)
+    nh, nw = sensor.native_size
+    return min(h, nh // 4), min(w, nw // 4)
 
 
 def body_heights(shape: Shape, sensor: Sensor, size, x_mm, y_mm, yaw_deg, tilt_deg) -> np.ndarray:
@@ -123,14 +126,14 @@ class _Request:
     h_s: np.ndarray  # heights above the gel on the solve grid, mm
 
 
-def _request(shape: Shape, sensor: Sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed) -> _Request:
+def _request(shape: Shape, sensor: Sensor, ssize, force, x_mm, y_mm, yaw_deg, tilt_deg, seed) -> _Request:
     tilt = np.asarray(tilt_deg, dtype=np.float64).reshape(-1)
     if tilt.shape != (2,):
         raise ValueError(f"tilt_deg must be (tilt_x, tilt_y) in degrees, got {tilt_deg!r}")
     tilt_deg = tuple(float(t) for t in tilt)
     f = _check(sensor, force, x_mm, y_mm, yaw_deg, tilt_deg, seed)
     pose = (float(x_mm), float(y_mm), float(yaw_deg), tilt_deg)
-    h_s = body_heights(shape, sensor, _solve_size(sensor), *pose)
+    h_s = body_heights(shape, sensor, ssize, *pose)
     if not (h_s < 0.5 * FAR).any():
         raise ValueError(f"{shape.name} at pose {pose} does not reach the pad")
     return _Request(shape, f, pose, int(seed), h_s)
@@ -187,7 +190,7 @@ def press_many_seen(shapes, sensors, forces, xs, ys, yaws, tilts, seeds, size: t
         raise ValueError("press_many needs one shape, force, x, y, yaw, tilt and seed per press, got "
                          f"{[len(v) for v in (shapes, forces, xs, ys, yaws, tilts, seeds)]}")
     gel = sensor.gel
-    ssize = _solve_size(sensor)
+    ssize = solve_size(sensor, size)
     sdy, sdx = sensor.mm_per_px(ssize)
     out: list = [None] * len(shapes)
     reqs = {}
@@ -196,7 +199,7 @@ def press_many_seen(shapes, sensors, forces, xs, ys, yaws, tilts, seeds, size: t
             if path == "oblique" and np.asarray(args[1], float).reshape(-1)[:2].any():
                 raise ValueError(f"an oblique press takes its shear from the tilted path: request (0, 0, Fz), got "
                                  f"{tuple(float(v) for v in np.asarray(args[1]).reshape(-1))}")
-            reqs[i] = _request(args[0], sensor, *args[1:])
+            reqs[i] = _request(args[0], sensor, ssize, *args[1:])
         except ValueError as e:
             out[i] = e
     if not reqs:
@@ -239,8 +242,7 @@ def press_many_seen(shapes, sensors, forces, xs, ys, yaws, tilts, seeds, size: t
 def _sample(req: _Request, sensor: Sensor, size: tuple[int, int], normal, sh, noise: bool, path: str) -> Sample:
     """The frame and labels of one solved press: the solved surface on the render grid, with the body's own
     detail where it touches, carried by the shear, rendered."""
-    ssize = _solve_size(sensor)
-    sdy, sdx = sensor.mm_per_px(ssize)
+    sdy, sdx = sensor.mm_per_px(solve_size(sensor, size))
     dy, dx = sensor.mm_per_px(size)
     mpp = (dx + dy) / 2
     h = body_heights(req.shape, sensor, size, *req.pose)
