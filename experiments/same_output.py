@@ -44,7 +44,11 @@ from ffjax.sim import batched, dataset
 import configs
 
 small = sys.argv[1] == "small"
-batched.use_disk_cache()
+try:  # the compile cache's one home since it moved out of the simulator
+    from ffjax import compile_cache
+    compile_cache.enable()
+except ImportError:
+    batched.use_disk_cache()
 digests = {}
 
 def digest(label, s):

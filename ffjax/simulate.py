@@ -37,7 +37,6 @@ def main(argv=None) -> int:
     if args.workers is not None and args.workers < 1:
         ap.error(f"--workers must be at least 1, got {args.workers} (leave it out for the default)")
     cfg = configs.from_cli(ap, args.preset, args.set)
-    batched.use_disk_cache()  # this process's compiled solves, for the next run
     if args.workers is None and batched.on_accelerator():
         # dataset.generate keeps a caller on a GPU to one process (its jax may hold most of the GPU's memory); here
         # nothing else holds it, and a press's optics and files, on the CPU, cost as much as its solves on the

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -13,10 +15,24 @@ ROOT = Path(__file__).resolve().parents[1]
 # Tests run the smoke preset: a command that forgot its --data/--out would land in one of these defaults
 # (data/<preset>, runs/<preset>-<method>, results/<experiment>-<preset>; under the repo or the working directory).
 DEFAULTS = ("data/smoke", "runs/smoke-*", "results/*-smoke")
-# The simulator's compile cache is process-wide (ffjax.sim.batched.use_disk_cache): a test that runs
-# `ffjax.simulate` in the test process would turn it on for every later test there, and writing some training
-# programs to it crashed jax 0.10. The tests compile afresh, workers included (they inherit this).
-os.environ.setdefault("FFJAX_CACHE", "off")
+_OWN_CACHE: list[str] = []
+
+
+def pytest_configure(config):
+    """jax's compile cache (ffjax.compile_cache) in one folder for the run, shared by the xdist workers and every
+    command a test starts (they inherit FFJAX_CACHE): a program one of them compiled, the others load. A fresh
+    folder each run, removed at its end, so no entry of an earlier checkout is read."""
+    if "FFJAX_CACHE" not in os.environ and not hasattr(config, "workerinput"):
+        os.environ["FFJAX_CACHE"] = tempfile.mkdtemp(prefix="ffjax-test-cache-")
+        _OWN_CACHE.append(os.environ["FFJAX_CACHE"])
+    from ffjax import compile_cache
+
+    compile_cache.enable()
+
+
+def pytest_unconfigure(config):
+    for folder in _OWN_CACHE:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _snapshot() -> dict[str, int]:

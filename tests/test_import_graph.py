@@ -19,7 +19,7 @@ SHORT_FUNCTIONS = ("experiments/kernel.py",)
 # The package-level layers, lowest first. A unit (a package of ffjax, a top-level ffjax module, configs,
 # experiments) imports from its own unit and from the layers below it, never from its own layer or above.
 LAYERS = (
-    ("ffjax.errors",),  # the error types (imports nothing)
+    ("ffjax.errors", "ffjax.compile_cache"),  # the error types (imports nothing); jax's compile cache
     ("ffjax.files", "ffjax.jsontree"),  # files on disk; JSON trees
     ("ffjax.cli", "ffjax.results"),  # one-line errors of every CLI; results files
     ("ffjax.data",),  # splits on disk and the input pipeline

@@ -276,27 +276,3 @@ def test_the_free_surface_is_carried_with_the_gel():
     b = sim.press("cone", sensor, (1.0, 0.0, 5.0), size=(48, 64), noise=False)
     assert abs(float(a.depth.max()) - float(b.depth.max())) < 0.02 * float(a.depth.max())
     assert np.abs(b.depth - a.depth).max() > 0.01  # mm: the rim moved
-
-
-def _disk_cache_in_a_fresh_process(env: dict, home) -> dict:
-    """What use_disk_cache returns and leaves in jax's config, in a process of its own (jax's cache is
-    process-wide; the tests run with it off)."""
-    code = ("import json, jax; from ffjax.sim import batched; d = batched.use_disk_cache(); "
-            "print(json.dumps({'dir': d and str(d), 'config_dir': jax.config.jax_compilation_cache_dir, "
-            "'min_s': jax.config.jax_persistent_cache_min_compile_time_secs}))")
-    env = {**{k: v for k, v in os.environ.items() if k != "FFJAX_CACHE"}, "HOME": str(home), **env}
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
-
-
-def test_the_disk_cache_keeps_every_solve_program(tmp_path):
-    """The solves compile in 0.1-1 s on a CPU, under jax's default 1 s threshold for keeping a program: the
-    cache must lower it to 0, or it keeps nothing. FFJAX_CACHE names the folder; "off" leaves jax alone; the
-    default is under the home folder."""
-    got = _disk_cache_in_a_fresh_process({"FFJAX_CACHE": str(tmp_path / "c")}, tmp_path)
-    assert got["dir"] == got["config_dir"] == str(tmp_path / "c" / "xla") and got["min_s"] == 0.0
-    assert (tmp_path / "c" / "xla").is_dir()
-    off = _disk_cache_in_a_fresh_process({"FFJAX_CACHE": "off"}, tmp_path)
-    assert off["dir"] is None and not off["config_dir"] and off["min_s"] > 0
-    home = _disk_cache_in_a_fresh_process({}, tmp_path / "home")
-    assert home["dir"] == str(tmp_path / "home" / ".cache" / "ffjax" / "xla") and home["min_s"] == 0.0
