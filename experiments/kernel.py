@@ -301,7 +301,13 @@ def _train_pooled(jobs: list[Job], workers: int, force: bool, progress: bool, de
                 except Exception as e:
                     raise RuntimeError(f"training {folder} in a worker process failed: {e}") from e
                 bar.update()
-        except BaseException:
+        except BaseException as e:
+            if isinstance(e, KeyboardInterrupt):
+                # a worker inside XLA (compiling a step takes seconds) sees Ctrl-C only once it is back in Python:
+                # stop them now. Nothing is lost: every file is written atomically, and a run resumes from its
+                # last checkpoint
+                for proc in list(pool._processes.values()):
+                    proc.terminate()
             pool.shutdown(wait=True, cancel_futures=True)
             raise
         finally:

@@ -1,6 +1,7 @@
 """Command line tools answer a bad argument with one `error:` line (exit 2; a runtime fault such as a missing
 camera exits 1), naming the file or flag, not a traceback."""
 
+import json
 import os
 import subprocess
 import sys
@@ -43,6 +44,41 @@ def test_bad_arguments_are_one_line_errors(tmp_path, cmd, rc, fragment):
     assert p.returncode == rc, p.stderr
     assert len(errors) == 1 and fragment.format(tmp=tmp_path) in errors[0], p.stderr
     assert "Traceback" not in p.stderr
+
+
+def test_an_interrupt_while_the_ablation_trains_stops_its_workers(tmp_path):
+    """Issue 61: SIGINT to the ablation (`kill -INT`, or Ctrl-C reaching a worker busy inside XLA compiling its
+    train step, which sees it only once back in Python) while its worker processes train: one line, exit 130, and
+    the workers stopped, not waited for: the command had waited until their runs finished. A run resumes from its
+    last checkpoint (every file is written atomically)."""
+    import signal
+    import time
+
+    from test_ablation import shared_ablation
+
+    data = shared_ablation()[0] / "data"  # the smoke dataset and both backbones: the command goes straight to training
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "experiments.ablation", "--preset", "smoke", "--methods", "resnet_rd",
+                          "dino_rd", "--data", str(data), "--out", str(out), "--workers", "2", "--quiet"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, start_new_session=True,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)}, preexec_fn=faults_cases.terminal_sigint)
+    t0 = time.time()
+    while time.time() - t0 < 300 and not list(out.glob("runs/*/seed0/*")) and p.poll() is None:
+        time.sleep(0.1)  # a worker has started its run
+    p.send_signal(signal.SIGINT)  # the command alone: its workers must be stopped by it
+    _, err = p.communicate(timeout=60)  # a hang fails here, with the timeout's own error
+    assert p.returncode == 130 and err.strip().splitlines()[-1:] == ["interrupted"], err
+    stages = [json.loads(f.read_text()) for f in out.glob("runs/*/seed*/stage.json")]
+    assert not [s for s in stages if s.get("status") == "done"], "a worker went on to finish its run"
+    t0 = time.time()
+    while time.time() - t0 < 30:  # the workers were joined; the group empties as multiprocessing's helper exits
+        try:
+            os.killpg(p.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.2)
+    else:
+        pytest.fail("a process of the ablation's group outlived it")
 
 
 @pytest.mark.parametrize("workers", [1, 2])
