@@ -1,10 +1,12 @@
 """One tiny smoke-preset training run on simulated presses, shared by the inference/live/calibrate/export
-tests: trained once per pytest run (a module-level cache; a file lock shares it between xdist workers)."""
+tests: trained once per pytest run (a module-level cache; a file lock shares it between xdist workers); and
+`shared`, any folder a test module builds once per run for every worker."""
 
 from __future__ import annotations
 
 import atexit
 import fcntl
+import json
 import os
 import shutil
 import tempfile
@@ -61,6 +63,26 @@ def tmp_root() -> Path:
             root.mkdir(exist_ok=True)
         _CACHE["root"] = root
     return _CACHE["root"]
+
+
+def shared(name: str, build) -> tuple[Path, object]:
+    """(folder, value): `build(folder)` run once per pytest run, by whichever xdist worker asks first, while the
+    others wait on a file lock; its value is kept beside the folder as JSON (numbers exactly, anything else as
+    text). A test that changes the folder must work on a copy."""
+    if name not in _CACHE:
+        root = tmp_root()
+        folder, done = root / name, root / f"{name}.json"
+        with open(root / f"{name}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            try:
+                if not done.exists():
+                    shutil.rmtree(folder, ignore_errors=True)
+                    folder.mkdir()
+                    done.write_text(json.dumps({"value": build(folder)}, default=str))
+            finally:
+                fcntl.flock(lock, fcntl.LOCK_UN)
+        _CACHE[name] = (folder, json.loads(done.read_text())["value"])
+    return _CACHE[name]
 
 
 def smoke_run() -> Path:

@@ -1,8 +1,10 @@
 """The main job end to end at the smoke preset: every stage, the files, the schema, and stage reuse."""
 
 import json
+from pathlib import Path
 
 import _pins
+import _smoke_run
 import jax
 import pytest
 
@@ -21,13 +23,21 @@ def pinned(results: dict) -> dict:
     return {"jax": jax.__version__, **{k: strip(results[k]) for k in PIN_KEYS}}
 
 
+def _args(root: Path) -> list[str]:
+    return ["--preset", "smoke", "--methods", "resnet_rd", "dino_rd", "--seeds", "2", "--out", str(root / "out"),
+            "--data", str(root / "data"), "--quiet", "--workers", "1"]  # one at a time on every core: as pinned
+
+
+def shared_ablation() -> tuple[Path, dict]:
+    """(its folder, its results): the smoke ablation of two methods, run once per test run for every worker
+    (tests/_smoke_run.shared); FOLDER/data holds the smoke dataset and both pretrained backbones."""
+    return _smoke_run.shared("ablation", lambda root: ablation.main(_args(root)))
+
+
 @pytest.fixture(scope="module")
-def smoke_run(tmp_path_factory):
-    root = tmp_path_factory.mktemp("ablation")
-    out, data = root / "out", root / "data"
-    args = ["--preset", "smoke", "--methods", "resnet_rd", "dino_rd", "--seeds", "2", "--out", str(out),
-            "--data", str(data), "--quiet", "--workers", "1"]  # one at a time on every core: as pinned
-    return ablation.main(args), out, data, args
+def smoke_run():
+    root, results = shared_ablation()
+    return results, root / "out", root / "data", _args(root)
 
 
 def test_writes_tables_plots_and_schema(smoke_run):

@@ -57,7 +57,8 @@ def test_label_axis_and_sign_match_the_image(key):
         sign = np.sign(f[axis])
         np.testing.assert_allclose(s.force, [*f, FZ], atol=1e-6)  # the label is the applied force, (Fx, Fy, Fz)
         disp = s.meta["shear_disp_mm"]
-        assert np.sign(disp[axis]) == sign and abs(disp[1 - axis]) < 1e-4 * abs(disp[axis])  # solver round-off
+        # across the push only what the stick solve leaves (it stops at an rms error of 1e-4 of the displacement)
+        assert np.sign(disp[axis]) == sign and abs(disp[1 - axis]) < 1e-3 * abs(disp[axis])
         # the bulge rises in front of the motion: depth < 0 (out of the gel) on the +axis side for +F
         bulge = np.clip(-(s.depth - s0.depth), 0, None)
         coord = np.indices(bulge.shape)[1 - axis] - (bulge.shape[1 - axis] - 1) / 2

@@ -1,10 +1,6 @@
 """ffjax.sim: physics invariants, determinism, every shape and sensor, refusals. Small renders only."""
 
 import dataclasses
-import json
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
