@@ -18,7 +18,8 @@ TINY = {
 # batch's memory
 TINY_SIM = {"sizes": {"24x32": (24, 32)}, "batches": (1, 4), "n": 4, "reference_n": 2, "agreement_size": (24, 32),
             "agreement_per_shape": 1, "agreement_sensors": ("mini-1-gel1", "digit"), "memory": (4, (24, 32)),
-            "dataset": None, "path": {"n": 4, "steps": (1, 2), "reference": 4}}
+            "dataset": None, "path": {"n": 4, "steps": (1, 2), "reference": 4},
+            "discretization": {"sizes": {"smoke": (24, 32)}, "per_shape": 1, "shapes": ("sphere_big", "cross")}}
 # what the smoke pipeline's `experiments.bench --smoke` runs: TINY with a small scaling sweep (the pipeline skips
 # no section) and the simulator's part, with the smoke dataset's time read from the one the ablation made
 PIPELINE = {**TINY, "name": "smoke", "scaling": {"base": "smoke", "batch": (4,), "size": (16,), "model": ((16, 1, 2),)},
@@ -101,9 +102,14 @@ def check_sim(out, res: dict) -> None:
     assert all(a["depth_um_max"] == b["depth_um_max"] for a, b in (one, two))  # the quadrature weighs only forces
     assert all(r["ms_a_press"] > 0 for r in pc.values())
     assert res["sim_speed"]["memory"]["peak_rss_mib"] > 0
+    dz = res["sim_speed"]["discretization"]["sizes"]["smoke"]
+    assert dz["grid"] == [24, 32] and dz["finer"] == [48, 64] and set(dz["shapes"]) == {"sphere_big", "cross"}
+    for e in (*dz["shapes"].values(), dz["all"]):  # the grids differ, so do the answers, by less than the answer
+        assert e["presses"] and 0 < e["approach_rel"]["median"] <= e["approach_rel"]["max"] < 1
     text = (out / "report.md").read_text()
     assert "batched layer solves against the numpy reference" in text and "Agreement on the same presses" in text
     assert (out / "sim_speed.png").stat().st_size > 10_000 and "![sim_speed](sim_speed.png)" in text
+    assert "The solve grid's discretization (1 presses a shape" in text and "| smoke 24x32: shear % |" in text
     assert "The oblique path's steps (4 presses" in text  # the default, 2 power-law steps, among the rows
     assert "| 2 | power (default) |" in text and "midpoint (default)" not in text
     assert (out / "path_convergence.png").stat().st_size > 10_000 and "(path_convergence.png)" in text

@@ -349,6 +349,24 @@ def sim_tables(ss: dict | None) -> str:
                            _f(r["ms_a_press"]), pct(r, "ft_rel_median"), pct(r, "ft_rel_p90"), pct(r, "ft_rel_max"),
                            _f(r["depth_um_median"]), _f(r["depth_um_max"]), _f(100 * r["pixels_over_1_count"], 2)]
                           for r in pc["rows"]])]
+    dz = ss.get("discretization")
+    if dz:
+        sizes = dz["sizes"]
+
+        def pct(e, k):
+            return "-" if not e or not e[k] else f"{_f(100 * e[k]['median'], 2)} ({_f(100 * e[k]['max'], 1)})"
+
+        shapes = list(next(iter(sizes.values()))["shapes"])
+        head = [f"{k} {'x'.join(map(str, v['grid']))}: {what}" for k, v in sizes.items()
+                for what in ("shear %", "approach %")]
+        out += [f"\nThe solve grid's discretization ({dz['per_shape']} presses a shape on {dz['sensor']}, pressed as "
+                "the dataset presses): each preset's frame solved on the grid its size takes (`sim.solve_size`) "
+                "against the same presses solved on a grid twice as fine each way, rendered alike. The tangential "
+                f"force's error relative to its size (presses sheared by more than {dz['sheared_above_n']} N) and "
+                "the approach's, median (max) over the presses, in %.\n",
+                md_table(["shape", *head], [[name, *(pct(v["shapes"].get(name) if name != "all" else v["all"], k)
+                                                     for v in sizes.values() for k in ("shear_rel", "approach_rel"))]
+                                            for name in [*shapes, "all"]])]
     mem = ss.get("memory")
     if mem:
         device = (f"; the device's peak {_f(mem['device_peak_mib'])} MiB (jax's allocator)"

@@ -3,7 +3,8 @@
 and for the agreement checks), in one run, per render size and batch size, pressed as the
 dataset presses (the oblique press in data.path_steps increments: path_steps + 1 normal and path_steps stick
 solves each); their agreement on every indenter, unseen object and sensor; the oblique path's distance to itself
-converged in its steps, per quadrature, against its time; the peak memory of one batch; and a
+converged in its steps, per quadrature, against its time; each preset's solve grid against one twice as fine, per
+shape; the peak memory of one batch; and a
 preset's whole dataset, end to end (read from a made dataset's manifest where the call that made it is that
 measurement: `--data`, as the pipeline gives it)."""
 
@@ -177,6 +178,48 @@ def agreement(size, per_shape: int, sensors=None) -> dict:
 SHEARED_N = 0.05  # presses sheared by less are left out of the path's relative force error (noise over a tiny force)
 
 
+def discretization(sizes: dict, per_shape: int, sensor: str = "mini-1-gel1", shapes=None) -> dict:
+    """What each preset's solve grid gives away: every indenter and unseen object pressed as the dataset presses
+    (`per_shape` presses each), solved on the grid its frame size takes (`sim.solve_size`) and again on one twice
+    as fine in each direction, rendered at the same frame size. Per size and shape: the tangential force's error
+    relative to its size (presses sheared by more than SHEARED_N), the approach's relative error, and the
+    rendered depth's largest difference (um), median and max over the presses. shapes: default all of them."""
+    shapes = list(shapes or (*sim.INDENTERS, *sim.UNSEEN_OBJECTS))
+    p = presses(per_shape * len(shapes), seed=3, shapes=shapes, sensor=sensor)
+    s = sim.get_sensor(sensor)
+    out = {}
+    for label, size in sizes.items():
+        size = tuple(size)
+        grid = sim.solve_size(s, size)
+        finer = (2 * grid[0], 2 * grid[1])
+        args = ([sim.get_shape(v) for v in p["shape"]], s, p["forces"], p["x_mm"], p["y_mm"], p["yaw_deg"],
+                p["tilt_deg"], [int(v) for v in p["seeds"]], size)
+        how = {"path": LOADING, "steps": STEPS, "quadrature": QUADRATURE, "noise": False}
+        coarse, fine = sim.press_many(*args, grid=grid, **how), sim.press_many(*args, grid=finer, **how)
+        rows: dict = {}
+        for name, a, b in zip(p["shape"], coarse, fine):
+            if isinstance(a, ValueError) or isinstance(b, ValueError):
+                rows.setdefault(name, []).append(None)
+                continue
+            ft = float(np.hypot(*b.force[:2]))
+            shear = float(np.hypot(*(a.force[:2] - b.force[:2])) / ft) if ft > SHEARED_N else None
+            approach = abs(a.meta["penetration_mm"] - b.meta["penetration_mm"]) / b.meta["penetration_mm"]
+            rows.setdefault(name, []).append((shear, approach, float(np.abs(a.depth - b.depth).max()) * 1000))
+        out[label] = {"render_size": list(size), "grid": list(grid), "finer": list(finer),
+                      "shapes": {n: _errors(r) for n, r in rows.items()},
+                      "all": _errors([x for r in rows.values() for x in r])}
+    return {"sensor": sensor, "per_shape": per_shape, "sheared_above_n": SHEARED_N, "sizes": out}
+
+
+def _errors(rows: list) -> dict:
+    """Median and max of each error over the solved presses (None: a press one grid refused)."""
+    solved = [r for r in rows if r is not None]
+    stat = lambda v: {"median": float(np.median(v)), "max": float(np.max(v))} if v else None  # noqa: E731
+    return {"presses": len(solved), "refused": len(rows) - len(solved),
+            "shear_rel": stat([r[0] for r in solved if r[0] is not None]),
+            "approach_rel": stat([r[1] for r in solved]), "depth_um": stat([r[2] for r in solved])}
+
+
 def path_convergence(n: int, steps, reference: int, size, sensor: str = "mini-1-gel1") -> dict:
     """The oblique path against itself converged: n presses (mixed indenters, the dataset's ranges) pressed in
     `reference` steps with the power-law quadrature, then in each of `steps` with each of mechanics.QUADRATURES.
@@ -319,6 +362,12 @@ def run(plan: dict, log=print, data=None) -> dict:
         log("[bench] sim path, |Ft| off the converged path (median): " + ", ".join(
             f"{r['steps']} {r['quadrature']} {100 * r.get('ft_rel_median', float('nan')):.1f}%"
             for r in out["path"]["rows"]))
+    if plan.get("discretization"):
+        spec = plan["discretization"]
+        out["discretization"] = discretization(spec["sizes"], spec["per_shape"], shapes=spec.get("shapes"))
+        log("[bench] sim discretization, against a 2x-finer grid (median shear / approach): " + ", ".join(
+            f"{k} {100 * v['all']['shear_rel']['median']:.2f}% / {100 * v['all']['approach_rel']['median']:.2f}%"
+            for k, v in out["discretization"]["sizes"].items() if v["all"]["shear_rel"]))
     out["memory"] = peak_memory(*plan["memory"], plan.get("memory_piece", 0))
     log(f"[bench] sim memory: {out['memory']}")
     for key, spec in (("dataset", plan.get("dataset")), ("sample", plan.get("sample"))):

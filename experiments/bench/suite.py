@@ -36,7 +36,8 @@ PLANS = {
         "sim": {"n": {"64x64": 10}, "sizes": {"64x64": (24, 32)}}, "data": {"per_shape": 4, "batches": 3},
         "sim_speed": {"sizes": {"24x32": (24, 32)}, "batches": (1, 8), "n": 8, "reference_n": 4,
                       "agreement_size": (24, 32), "agreement_per_shape": 1, "memory": (8, (24, 32)), "dataset": None,
-                      "floor": 4, "path": {"n": 4, "steps": (1, 2), "reference": 4}},
+                      "floor": 4, "path": {"n": 4, "steps": (1, 2), "reference": 4},
+                      "discretization": {"sizes": {"smoke": (24, 32)}, "per_shape": 1}},
         "workers": (0,),
         "scaling": {"base": "smoke", "batch": (4, 8), "size": (16, 32), "model": ((16, 1, 2), (32, 2, 2))},
         "dp": None, "bf16_acc": {"preset": "smoke", "steps": 12, "batch": 8}, "profile": True,
@@ -56,6 +57,9 @@ PLANS = {
                       "floor": 128,  # presses timed against their transforms alone (at agreement_size)
                       # the oblique path in 2, 4 and 8 steps, per quadrature, against 32 power-law steps
                       "path": {"n": 48, "steps": (2, 4, 8), "reference": 32},
+                      # each preset's frame size solved on its grid and on one twice as fine, every shape
+                      "discretization": {"sizes": {"smoke": (24, 32), "quick": (48, 64), "paper": (240, 320)},
+                                         "per_shape": 4},
                       # the agreement on one Mini per gel and the DIGIT: the three Minis of a gel solve alike
                       # (sim.mechanics_key) and agreed to the last digit on every column at d6bb2a3
                       "agreement_sensors": ("mini-1-gel1", "mini-1-gel2", "mini-1-gel3", "digit"),

@@ -45,6 +45,7 @@ from ffjax.sim.press import (
     press_batch,
     press_many,
     press_many_seen,
+    solve_size,
 )
 from ffjax.sim.sensors import GELS, LED, SENSOR_NAMES, SENSORS, Gel, Sensor, get_sensor
 from ffjax.sim.shapes import INDENTERS, UNSEEN_OBJECTS, Shape, get_shape
@@ -52,5 +53,5 @@ from ffjax.sim.shapes import INDENTERS, UNSEEN_OBJECTS, Shape, get_shape
 __all__ = [
     "GELS", "INDENTERS", "LED", "SENSORS", "SENSOR_NAMES", "UNSEEN_OBJECTS", "Gel", "Sample", "Sensor", "Shape",
     "benchmark", "body_heights", "get_sensor", "get_shape", "mechanics_key", "press", "press_batch", "press_many",
-    "press_many_seen",
+    "press_many_seen", "solve_size",
 ]

@@ -144,7 +144,8 @@ PATHS = ("shear", "oblique")
 
 def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds, size: tuple[int, int] | None = None,
                noise: bool = True, reference: bool = False, path: str = "shear",
-               steps: int = mechanics.PATH_STEPS, quadrature: str = mechanics.PATH_QUADRATURE) -> list:
+               steps: int = mechanics.PATH_STEPS, quadrature: str = mechanics.PATH_QUADRATURE,
+               grid: tuple[int, int] | None = None) -> list:
     """One Sample per press (shapes, by name or Shape, and poses may all differ; one sensor and render size), or
     the ValueError that press refused: the layer solves of all of them run as one batch
     (`mechanics.solve_normal_batch`, `shear_batch`); reference=True runs the numpy reference solves instead (the
@@ -153,10 +154,11 @@ def press_many(shapes, sensor: Sensor | str, forces, xs, ys, yaws, tilts, seeds,
     path "shear": pressed to Fz, then the requested (Fx, Fy) applied in stick. path "oblique": the paper's
     press, the tool moved along its tilted axis until the gel carries Fz, the shear coming from the path
     (`mechanics.oblique_batch` in `steps` increments, each step's stiffness taken by its `quadrature`; request
-    (0, 0, Fz), the tilt sets the push)."""
+    (0, 0, Fz), the tilt sets the push). grid: the force solve's grid (default `solve_size` of the render size;
+    the benchmark's discretization check solves on a finer one)."""
     sensor = get_sensor(sensor) if isinstance(sensor, str) else sensor
     return press_many_seen(shapes, (sensor,), forces, xs, ys, yaws, tilts, seeds, size, noise, reference, path,
-                           steps, quadrature)[0]
+                           steps, quadrature, grid)[0]
 
 
 def mechanics_key(sensor: Sensor) -> tuple:
@@ -169,8 +171,8 @@ def mechanics_key(sensor: Sensor) -> tuple:
 
 def press_many_seen(shapes, sensors, forces, xs, ys, yaws, tilts, seeds, size: tuple[int, int] | None = None,
                     noise: bool = True, reference: bool = False, path: str = "shear",
-                    steps: int = mechanics.PATH_STEPS,
-                    quadrature: str = mechanics.PATH_QUADRATURE) -> list[list]:
+                    steps: int = mechanics.PATH_STEPS, quadrature: str = mechanics.PATH_QUADRATURE,
+                    grid: tuple[int, int] | None = None) -> list[list]:
     """`press_many` solved once and rendered as each of `sensors` sees it: one list of Samples (or ValueErrors) per
     sensor, each the very list press_many would give for that sensor. The sensors must share `mechanics_key` (a
     robustness sweep's lighting, camera noise or pigment levels of one gel); the first one's solve serves all."""
@@ -190,7 +192,7 @@ def press_many_seen(shapes, sensors, forces, xs, ys, yaws, tilts, seeds, size: t
         raise ValueError("press_many needs one shape, force, x, y, yaw, tilt and seed per press, got "
                          f"{[len(v) for v in (shapes, forces, xs, ys, yaws, tilts, seeds)]}")
     gel = sensor.gel
-    ssize = solve_size(sensor, size)
+    ssize = solve_size(sensor, size) if grid is None else render_size_of(sensor, grid)
     sdy, sdx = sensor.mm_per_px(ssize)
     out: list = [None] * len(shapes)
     reqs = {}
@@ -234,15 +236,16 @@ def press_many_seen(shapes, sensors, forces, xs, ys, yaws, tilts, seeds, size: t
     for view in views:
         frames = list(out)
         for (req, nrm, i, _), sh in zip(ok, shears):
-            frames[i] = _sample(req, view, size, nrm, sh, noise, path)
+            frames[i] = _sample(req, view, size, ssize, nrm, sh, noise, path)
         seen.append(frames)
     return seen
 
 
-def _sample(req: _Request, sensor: Sensor, size: tuple[int, int], normal, sh, noise: bool, path: str) -> Sample:
+def _sample(req: _Request, sensor: Sensor, size: tuple[int, int], ssize: tuple[int, int], normal, sh, noise: bool,
+            path: str) -> Sample:
     """The frame and labels of one solved press: the solved surface on the render grid, with the body's own
     detail where it touches, carried by the shear, rendered."""
-    sdy, sdx = sensor.mm_per_px(solve_size(sensor, size))
+    sdy, sdx = sensor.mm_per_px(ssize)
     dy, dx = sensor.mm_per_px(size)
     mpp = (dx + dy) / 2
     h = body_heights(req.shape, sensor, size, *req.pose)
