@@ -64,10 +64,9 @@ def test_writes_tables_plots_and_schema(smoke_run):
 
 def test_results_match_the_pinned_run(smoke_run):
     """Restructuring must leave the smoke ablation's numbers identical: bitwise against the pin made on this
-    CPU kind, within the measured cross-CPU tolerance against another kind's (tests/_pins.py). Re-pinned on an AMD
-    EPYC Zen 1 host (family 23 model 1) for issue 30's mend of the one-cell contacts (c96dc17), which changed some
-    presses of the smoke data and so 484 of 690 numbers, 4 beyond the tolerance (before it, for the oblique path in
-    power-law steps: 70 beyond); regenerate a pin only for a change meant to alter training or data, and say so in
+    CPU kind, within the measured cross-CPU tolerance against another kind's (tests/_pins.py). Re-pinned on an Intel Xeon
+    host (family 6 model 167), for jax 0.10.2 and 0.11.2, when the force solve moved to the frame's grid (every
+    simulated byte changed); regenerate a pin only for a change meant to alter training or data, and say so in
     the commit."""
     _, out, _, _ = smoke_run
     got = pinned(json.loads((out / "results.json").read_text()))
