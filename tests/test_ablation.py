@@ -64,8 +64,8 @@ def test_writes_tables_plots_and_schema(smoke_run):
 
 def test_results_match_the_pinned_run(smoke_run):
     """Restructuring must leave the smoke ablation's numbers identical: bitwise against the pin made on this
-    CPU kind, within the measured cross-CPU tolerance against another kind's (tests/_pins.py). Re-pinned on an Intel Xeon
-    host (family 6 model 167), for jax 0.10.2 and 0.11.2, when the force solve moved to the frame's grid (every
+    CPU kind, within the measured cross-CPU tolerance against another kind's (tests/_pins.py). Re-pinned on an Intel
+    Xeon host (family 6 model 167), for jax 0.10.2 and 0.11.2, when the force solve moved to the frame's grid (every
     simulated byte changed); regenerate a pin only for a change meant to alter training or data, and say so in
     the commit."""
     _, out, _, _ = smoke_run
