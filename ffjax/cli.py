@@ -159,7 +159,7 @@ def run(main, argv=None) -> int:
     (FFJAX_DEBUG=1: re-raised, and background tracebacks are kept)."""
     if not os.environ.get("FFJAX_DEBUG"):
         _quiet_background_faults()
-    from ffjax import compile_cache  # here, not at import: `--help` and the parsers stay free of jax
+    from ffjax import compile_cache  # here, not at import: modules that only parse flags stay free of jax
 
     compile_cache.enable()  # every command loads what an earlier one compiled on this machine
     _REPORTED.clear()
