@@ -183,7 +183,10 @@ def test_data_parallel_8_devices_matches_1(cfg, tmp_path):
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-4000:]
     ref_metrics, ref_params = two_steps(cfg)
     got = np.load(out)
-    np.testing.assert_allclose(got["metrics"][:, :3], ref_metrics[:, :3], rtol=1e-5, atol=1e-7)  # losses
+    # The first step's losses see identical params: float noise only. The second step's see params that
+    # already differ within Adam's bound (below), so its losses differ by more than float noise.
+    np.testing.assert_allclose(got["metrics"][0, :3], ref_metrics[0, :3], rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(got["metrics"][1, :3], ref_metrics[1, :3], rtol=1e-4, atol=1e-6)
     # The gradient norm goes through the regressor's feature normalization, which divides the smoke ViT's
     # feature variation (~2e-5 around ~0.8, where float32 resolves ~6e-8) by its batch std: the summation
     # order of the batch mean shows there at ~1e-3 relative.
