@@ -319,16 +319,14 @@ def write_csvs(res: dict, out: Path) -> None:
     )
 
 
+@style.plots
 def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
-    import matplotlib  # loaded only when figures are drawn (~0.5 s), not by the tasks themselves
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """push_force.png (one push, where a trace was kept), push_duration.png and grasp_steps.png (where a cup trace
+    was kept); matplotlib is loaded only here (slow to import), not by the tasks themselves."""
     made = []
     if push_trace is not None:
         tr = push_trace
-        fig, ax = plt.subplots(figsize=(9, 3.6), layout="constrained")
+        fig, ax = style.figure(figsize=(9, 3.6), layout="constrained")
         const = np.asarray(tr["phase"]) == 2
         if const.any():
             ax.axvspan(
@@ -350,13 +348,12 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
             title=f"One push of {tr['object']} ({t_end + float(np.diff(tr['t'][:2])[0]):.0f} s simulated), "
                   f"{first_checkpoint(res, tr['method'])}",
         )
-        fig.legend(fontsize=7, loc="outside right center")
+        fig.legend(loc="outside right center")
         stamp(fig, res, res.get("checkpoints", {}).get(tr["method"], [])[:1])
-        fig.savefig(out / "push_force.png", dpi=120)
-        plt.close(fig)
+        style.save(fig, out / "push_force.png")
         made.append("push_force.png")
     push = res["pushing"]
-    fig, ax = plt.subplots(figsize=(9, 3.8), layout="constrained")
+    fig, ax = style.figure(figsize=(9, 3.8), layout="constrained")
     seen: dict = {}
     durations = np.asarray(push["durations"], float)
     methods = [m for m in push["sweep"] if m != PERFECT]
@@ -376,16 +373,15 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
                     color=style.colour(m), marker=style.marker(m), ls="--" if twin != m else "-", capsize=2.5,
                     mfc="white" if twin != m else style.colour(m), label=label)
     ax.set(xlabel="push duration [s]", ylabel="mean weight error, four objects [%]")
-    fig.suptitle(f"Weighing error against push duration ({res.get('preset', '?')} models; {_over_seeds(res, methods)})",
-                 fontsize=11)
-    fig.legend(fontsize=7, loc="outside right center")
+    ax.grid(alpha=0.3)
+    fig.suptitle(f"Weighing error against push duration ({res.get('preset', '?')} models; {_over_seeds(res, methods)})")
+    fig.legend(loc="outside right center")
     stamp(fig, res)
-    fig.savefig(out / "push_duration.png", dpi=120)
-    plt.close(fig)
+    style.save(fig, out / "push_duration.png")
     made.append("push_duration.png")
     tr = res["grasping"].get("cup_trace")
     if tr:
-        fig, (a1, a2) = plt.subplots(2, 1, figsize=(8.5, 5), sharex=True, layout="constrained")
+        fig, (a1, a2) = style.figure(2, 1, figsize=(8.5, 5), sharex=True, layout="constrained")
         a1.plot(tr["steps"], tr["true"], "k.-", label="true force")
         names = [f"{n}-gel{g}" for n, g in res["gripper"]["sensors"]]
         colour = style.colour(res["main_method"])
@@ -396,13 +392,12 @@ def plots(res: dict, out: Path, push_trace: dict | None) -> list[str]:
         a1.axvline(tr["stop_true"], color="k", ls=":", lw=0.8, label="stop, control by the true force")
         a1.axvline(tr["stop_est"], color=colour, ls=":", lw=0.8, label="stop, control by the estimate")
         a1.set(ylabel="Fz [N]")
-        fig.suptitle(f"Closing on the cup rim, {first_checkpoint(res, res['main_method'])}", fontsize=10)
-        fig.legend(fontsize=7, loc="outside right center")
+        fig.suptitle(f"Closing on the cup rim, {first_checkpoint(res, res['main_method'])}")
+        fig.legend(loc="outside right center")
         a2.plot(tr["steps"], tr["deformation_pct"], "k.-")
         a2.set(xlabel="gripper step", ylabel="deformation [%]")
         stamp(fig, res, res.get("checkpoints", {}).get(res["main_method"], [])[:1])
-        fig.savefig(out / "grasp_steps.png", dpi=120)
-        plt.close(fig)
+        style.save(fig, out / "grasp_steps.png")
         made.append("grasp_steps.png")
     return made
 

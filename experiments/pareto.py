@@ -58,13 +58,13 @@ PANELS = (  # (key, y metric, x metric, x is minimized, title)
     ("t2_latency", "table2", "latency_b1_ms", True, "Table II error vs batch-1 latency"),
     ("t1_params", "table1", "params_total", True, "Table I error vs parameters"),
 )
-AXIS_LABELS = {"latency_b1_ms": "inference latency, batch 1 (ms)", "train_img_s": "train_step images/s",
-               "params_total": "parameters", "table1": "Table I error, unseen objects (nl1 %)",
-               "table2": "Table II error, GelSight sensors (nl1 %)"}
+AXIS_LABELS = {"latency_b1_ms": "inference latency at batch 1 (ms)",
+               "train_img_s": "training throughput (images/s)", "params_total": "parameters (all, trained or not)",
+               "table1": "Table I error, unseen objects (%)", "table2": "Table II error, GelSight units (%)"}
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], experiment="pareto",
+    ap = common.base_parser(__doc__, experiment="pareto",
                             costs={"quick": "reuses an ablation's runs (--ablation)"})
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
                     help=f"registry names (default: the paper set {', '.join(registry.PAPER_SET)})")
@@ -415,86 +415,135 @@ def _la(la) -> str:
     return "/".join(f"{x:.1f}" for x in la)
 
 
-def plot(results: dict, path: Path) -> Path:
-    import matplotlib
+def _point_label(r: dict) -> str:
+    """A point's label on the chart: 'DINO RD vit-xs'; a size named like its backbone adds nothing ('ResNet RD')."""
+    return style.name(r["method"]) if r["size"] == r.get("backbone", r["size"]) else _shown(r)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+
+def _together(xy, log_x: bool, tol: float = 0.015) -> list[list[int]]:
+    """Groups of points that would sit on each other (within `tol` of the axis' span in x and in y, x in log
+    where the axis is): drawn side by side and labelled once."""
+    ok = [i for i, p in enumerate(xy) if np.all(np.isfinite(p)) and (not log_x or p[0] > 0)]
+    if not ok:
+        return []
+    xs = np.array([np.log10(xy[i][0]) if log_x else xy[i][0] for i in ok])
+    ys = np.array([xy[i][1] for i in ok])
+    sx, sy = max(float(np.ptp(xs)), 1e-12), max(float(np.ptp(ys)), 1e-12)
+    groups: list[list[int]] = []
+    for k, i in enumerate(ok):
+        for g in groups:
+            j = ok.index(g[0])
+            if abs(xs[k] - xs[j]) <= tol * sx and abs(ys[k] - ys[j]) <= tol * sy:
+                g.append(i)
+                break
+        else:
+            groups.append([i])
+    return groups
+
+
+def _group_label(rows: list) -> str:
+    """One label for points drawn together: 'DINO_F R, DINO_F RD vit-s' (one size), else each point's label."""
+    sizes = {r["size"] for r in rows}
+    if len(sizes) == 1:
+        tail = _point_label(rows[0])[len(style.name(rows[0]["method"])):]
+        return ", ".join(style.name(r["method"]) for r in rows) + tail
+    return " / ".join(_point_label(r) for r in rows)
+
+
+@style.plots
+def plot(results: dict, path: Path) -> Path:
+    """Four panels (PANELS): each cell's error against a cost, colour = method, marker = backbone size, filled =
+    mean ± std over 2+ seeds, hollow = 1 seed, the Pareto front ringed and stepped. Every point is labelled once;
+    points that would coincide (DINO_F R and DINO_F RD share their speed and error) sit side by side under one
+    label. The machine and its load are in pareto.md, not on the chart."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
     from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+    from matplotlib.transforms import offset_copy
 
     rows = results["cells"]
     methods = sorted({r["method"] for r in rows}, key=lambda m: (m not in registry.PAPER_SET, m))
     colours = {m: style.colour(m) for m in methods}  # the method's colour in every figure; the marker is the size
     markers = dict(zip(results["sizes"], "osD^vP*X"))
-    fig, axes = plt.subplots(2, 2, figsize=(12, 9))
-    to_label = []  # per panel: the front's points and names, its markers' radii, the lines drawn (data coordinates)
+    fig, axes = style.figure(2, 2, figsize=(12, 9.6))
+    to_label = []  # per panel: the groups' anchors and names, their radii, the lines drawn (data coordinates)
+    spread = False
     for ax, (_, y, x, x_min, title) in zip(axes.ravel(), PANELS):
         xy = _xy(rows, y, x)
         on_front = set(pareto_front(xy, (x_min, True)))
-        for r, (a, b) in zip(rows, xy):
-            multi = r[y].get("n", 1) >= 2
-            ax.scatter(a, b, edgecolors=colours[r["method"]], facecolors=colours[r["method"]] if multi else "white",
-                       marker=markers.get(r["size"], "o"), s=45, lw=1.3, zorder=3)  # hollow: one seed
-            if multi:  # the seeds' spread of the error; none drawn for one seed
-                ax.errorbar(a, b, yerr=r[y]["std"], color=colours[r["method"]], lw=1, capsize=0, zorder=2)
+        xs = [a for a, _ in xy if np.isfinite(a) and a > 0]
+        log_x = bool(xs) and max(xs) / min(xs) > 4  # log only where it spreads points; narrow ranges read linear
+        groups = _together(xy, log_x)
+        anchors = [(float(np.mean([xy[i][0] for i in g])) if not log_x else
+                    float(10 ** np.mean([np.log10(xy[i][0]) for i in g])), float(np.mean([xy[i][1] for i in g])))
+                   for g in groups]  # a group's position: its points' centre (they differ by under 1.5% of the axis)
+        lines = []
+        for g, anchor in zip(groups, anchors):
+            for k, i in enumerate(g):  # side by side, 9 points apart, around the group's position
+                r, (a, b) = rows[i], (xy[i] if len(g) == 1 else anchor)
+                at = offset_copy(ax.transData, fig=fig, x=9 * (k - (len(g) - 1) / 2), y=0, units="points")
+                multi = r[y].get("n", 1) >= 2
+                c = colours[r["method"]]
+                ax.scatter(a, b, edgecolors=c, facecolors=c if multi else "white", marker=markers.get(r["size"], "o"),
+                           s=48, lw=1.3, zorder=3, transform=at)
+                if multi and r[y].get("std"):  # the seeds' spread of the error; none drawn for one seed
+                    spread = True
+                    ax.errorbar(a, b, yerr=r[y]["std"], color=c, lw=1, capsize=0, zorder=2, transform=at)
+                    lines.append([(a, b - r[y]["std"]), (a, b + r[y]["std"])])
         front = sorted((xy[i] for i in on_front), key=lambda p: p[0])
-        lines = [[(a, b - r[y]["std"]), (a, b + r[y]["std"])] for r, (a, b) in zip(rows, xy)
-                 if r[y].get("n", 1) >= 2 and r[y].get("std")]  # the error bars
         if front:
             fx, fy = zip(*front)
             ax.step(fx, fy, where="post" if x_min else "pre", color="k", lw=1, ls="--", zorder=2)
             for (x0, y0), (x1, y1) in zip(front, front[1:]):  # the step's corners: post moves along x first
                 corner = (x1, y0) if x_min else (x0, y1)
                 lines += [[(x0, y0), corner], [corner, (x1, y1)]]
-            ax.scatter(fx, fy, s=160, facecolors="none", edgecolors="k", lw=1.2, zorder=4,
-                       label="Pareto front")
-        xs = [a for a, _ in xy if np.isfinite(a) and a > 0]
-        if xs and max(xs) / min(xs) > 4:  # log only where it spreads points; narrow ranges read better linear
+            ax.scatter(fx, fy, s=170, facecolors="none", edgecolors="k", lw=1.2, zorder=4)
+        if log_x:
             ax.set_xscale("log")
             ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
             ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: _num(v)))
             ax.xaxis.set_minor_formatter(NullFormatter())
-        ax.margins(x=0.12, y=0.08)  # room for the labels
+        # markers drawn with an offset transform are left out of autoscaling: their data (and error bars) put in
+        seen = [(a, b + d * r[y].get("std", 0.0)) for r, (a, b) in zip(rows, xy) for d in (-1, 1)
+                if np.isfinite(a) and np.isfinite(b)]
+        if seen:
+            ax.update_datalim(seen)
+        ax.margins(x=0.14, y=0.1)  # room for the labels
         ax.autoscale_view()
         ax.set(xlim=ax.get_xlim(), ylim=ax.get_ylim())  # fixed before the labels are placed in display space
-        # only the front is labelled (all 20 labels collided into a blob; colour and marker name the others),
-        # placed once the layout is final (below)
-        radii = [(np.sqrt(160 if i in on_front else 45) / 2 + 1) for i in range(len(rows))]  # points, with the edge
-        to_label.append((ax, xy, sorted(on_front), [_shown(r) for r in rows], radii, lines))
+        # every point labelled once (a group once), placed once the layout is final (below)
+        radii = [np.sqrt(170 if any(i in on_front for i in g) else 48) / 2 + 1 + 4.5 * (len(g) - 1) for g in groups]
+        to_label.append((ax, anchors, [_group_label([rows[i] for i in g]) for g in groups], radii, lines))
         ax.set(title=title, xlabel=AXIS_LABELS[x], ylabel=AXIS_LABELS[y])
-        ax.grid(alpha=0.3, which="both")
-    handles = [plt.Line2D([], [], color=colours[m], marker="o", ls="", label=style.name(m)) for m in methods]
-    handles += [plt.Line2D([], [], color="grey", marker=markers.get(s, "o"), ls="", label=s) for s in results["sizes"]]
-    handles.append(plt.Line2D([], [], color="k", marker="o", mfc="none", ls="--", label="Pareto front"))
-    if any(r[y]["n"] >= 2 for r in rows for y in ("table1", "table2") if "n" in r[y]):
-        handles.append(plt.Line2D([], [], color="grey", lw=1, label="error ± std over seeds"))
-    if any(r[y].get("n", 1) < 2 for r in rows for y in ("table1", "table2")):
-        handles.append(plt.Line2D([], [], color="grey", marker="o", mfc="white", ls="", label="hollow: 1 seed"))
-    # the legend sits above the bottom strip, which holds the provenance stamp
-    fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.5, 0.025), ncol=min(len(handles), 6),
-               fontsize=8)
-    fig.suptitle(f"Speed vs accuracy — {results['preset']} preset, commit {_short(results['commit'])}, "
-                 f"{results['machine']['cpu_model']} (load {_la(results['machine']['loadavg_before'])})", fontsize=10)
+        ax.grid(which="both")
+    # three keys, one per encoding, so that no glyph means two things
+    size_mk = [markers.get(s, "o") for s in results["sizes"]]
+    keys = [("method (colour)", [Patch(facecolor=colours[m], label=style.name(m)) for m in methods]),
+            ("backbone size (marker)", [Line2D([], [], color="0.2", marker=mk, ls="", label=s)
+                                        for s, mk in zip(results["sizes"], size_mk)]),
+            ("seeds and front", [Patch(facecolor="0.45", edgecolor="0.45", label="filled: mean of 2+ seeds"),
+                                 Patch(facecolor="white", edgecolor="0.45", label="hollow: 1 seed")]
+             + ([Line2D([], [], color="0.45", lw=1, label="bar: ± std over seeds")] if spread else [])
+             + [Line2D([], [], color="k", ls="--", lw=1, label="Pareto front (ringed)")])]
+    for k, (title, handles) in enumerate(keys):
+        fig.legend(handles=handles, title=title, loc="upper center", bbox_to_anchor=((k + 0.5) / len(keys), 0.115),
+                   ncol=2 if len(handles) > 3 else 1, frameon=False)
+    fig.suptitle(f"Speed against accuracy (preset {results['preset']})")
     common.stamp(fig, results["preset"], [], results.get("commit", "?"), seeds_text=seeds_said(results))
-    fig.tight_layout(rect=(0, 0.085, 1, 0.96))
-    renderer = fig.canvas.get_renderer()
-    px_per_pt = fig.dpi / 72.0
-    for ax, xy, front_i, names, radii, lines in to_label:
-        to_px = ax.transData.transform
-        ok = [i for i, p in enumerate(xy) if np.all(np.isfinite(p))]
-        obstacles = []
-        for i in ok:  # every marker, as its bounding box
-            (cx, cy), r = to_px(xy[i]), radii[i] * px_per_pt
-            obstacles.append((cx - r, cy - r, cx + r, cy + r))
-        for seg in lines:  # error bars and the front's step, as thin boxes
-            (ax0, ay0), (ax1, ay1) = to_px(seg[0]), to_px(seg[1])
-            obstacles.append((min(ax0, ax1) - 1, min(ay0, ay1) - 1, max(ax0, ax1) + 1, max(ay0, ay1) + 1))
-        front_i = [i for i in front_i if i in ok]
-        common.place_labels(ax, [xy[i] for i in front_i], [names[i] for i in front_i],
-                            [radii[i] for i in front_i], obstacles, renderer)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    def labels():  # once the layout is final: placed in display space
+        renderer = fig.canvas.get_renderer()
+        px_per_pt = fig.dpi / 72.0
+        for ax, anchors, names, radii, lines in to_label:
+            to_px = ax.transData.transform
+            obstacles = []
+            for (cx, cy), r in zip(map(to_px, anchors), radii):  # every group's markers, as one box
+                obstacles.append((cx - r * px_per_pt, cy - r * px_per_pt, cx + r * px_per_pt, cy + r * px_per_pt))
+            for seg in lines:  # error bars and the front's step, as thin boxes
+                (ax0, ay0), (ax1, ay1) = to_px(seg[0]), to_px(seg[1])
+                obstacles.append((min(ax0, ax1) - 1, min(ay0, ay1) - 1, max(ax0, ax1) + 1, max(ay0, ay1) + 1))
+            common.place_labels(ax, anchors, names, radii, obstacles, renderer)
+
+    return style.save(fig, path, then=labels, bottom=0.12)  # the bottom strip: the keys and the footer
 
 
 def write_all(results: dict, out: Path) -> None:

@@ -55,7 +55,7 @@ def data_folder(cfg: dict, data_dir, share: float) -> Path:
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], experiment="pattern_share",
+    ap = common.base_parser(__doc__, experiment="pattern_share",
                             costs={"quick": "~2 datasets and 2 methods x 2 shares of training beyond the ablation"})
     ap.add_argument("--shares", type=float, nargs="+", default=list(DEFAULT_SHARES),
                     help="shares of the fine fixed pattern on the gel, each in [0, 1]")
@@ -196,21 +196,18 @@ def write_all(results: dict, out: Path) -> None:
     common.write_json(out / "results.json", results)
 
 
+@style.plots
 def plot(results: dict, path: Path) -> Path:
     """Left: Table II's mean against the share, per method. Then one panel per method: its shear error on each gel
     against the share (solid gel 1, the training gel; dashed gel 2; dotted gel 3). Error bars: std over 2 or more
-    seeds, dots its seeds; a hollow marker is one seed. Points at one share are set slightly apart to stay readable."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    seeds, dots its seeds; a hollow marker is one seed. Points at one share are set slightly apart to stay readable.
+    Every y axis starts at 0: a spread of a fraction of a point reads as what it is against the error itself."""
     keys = _shares(results)
     shares = np.array([results["per_share"][k]["share"] for k in keys])
     methods = results["methods"]
     step = 0.02 * max(float(np.ptp(shares)), 1.0)  # the sideways offset between points at one share
-    fig, axes = plt.subplots(1, 1 + len(methods), figsize=(4.2 * (1 + len(methods)), 3.9))
-    axes = np.atleast_1d(axes)
+    fig, axes = style.figure(1, 1 + len(methods), figsize=(4.4 * (1 + len(methods)), 4.0), squeeze=False)
+    axes = axes[0]
     styles = {1: "-", 2: "--", 3: ":"}
 
     def draw(ax, m, metric, dx, ls):
@@ -238,20 +235,20 @@ def plot(results: dict, path: Path) -> Path:
     axes[0].plot([], [], "o", color="0.3", mfc="white", label="1 seed")
     axes[0].scatter([], [], s=9, color="k", alpha=0.45, label="each seed")
     axes[0].set_title("Table II mean, 9 GelSight units x gels", fontsize=9)
-    shear_axes = axes[1:]
-    lo = min(ax.get_ylim()[0] for ax in shear_axes)
-    hi = max(ax.get_ylim()[1] for ax in shear_axes)
+    shear_axes = list(axes[1:])
+    hi = max((ax.get_ylim()[1] for ax in shear_axes), default=1.0)
     for ax in axes:
-        if ax in shear_axes:
-            ax.set_ylim(lo, hi)  # one scale for every method's shear
+        # from 0, with room above for the legend: the seeds' spread against the size of the error, not magnified
+        ax.set_ylim(0, 1.3 * (hi if ax in shear_axes else ax.get_ylim()[1]))  # one scale for every method's shear
         ax.set_xticks(shares)
         ax.set_xlabel("share of the fixed pattern on the gel")
-        ax.set_ylabel("normalized L1 error (%)")
-        ax.legend(fontsize=7)
+        style.error_axis(ax)
+        ax.grid(axis="y")
+        ax.legend(fontsize=7, loc="upper center", ncol=2)
     fig.suptitle(f"Table II by the moving share of the fixed pattern (0: all the camera's, stays; 1: all pigment, "
                  f"moves with the gel; preset {results['preset']})", fontsize=10)
     common.stamp(fig, results["preset"], [], results.get("commit", "?"), seeds_text=seeds_said(results))
-    return tables.save_png(fig, Path(path), bottom=0.015)  # the footer, under the right panel's x label, clear of it
+    return style.save(fig, Path(path), bottom=0.015)  # the footer, under the right panel's x label, clear of it
 
 
 if __name__ == "__main__":

@@ -45,7 +45,7 @@ def replot(folder, commit: str | None = None) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
+    ap = argparse.ArgumentParser(prog=common.prog(), description=common.description(__doc__))
     ap.add_argument("folders", nargs="+", help="folders holding a results.json")
     commit = common.git_commit()  # before the first re-render changes a tracked file
     for folder in ap.parse_args(argv).folders:

@@ -24,7 +24,6 @@ import numpy as np
 
 from experiments import common, kernel, style
 from experiments import paper_numbers as P
-from experiments.tables import save_png
 from ffjax import cli, registry
 from ffjax.sim.sensors import get_sensor, with_markers, with_pattern_moving
 
@@ -355,7 +354,7 @@ def seed_spread(evals: dict) -> dict:
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], experiment="stability",
+    ap = common.base_parser(__doc__, experiment="stability",
                             costs={"quick": "reuses an ablation's 15 runs (--ablation)"})
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
                     help="registry names (default: the ablation's methods, else the paper set)")
@@ -698,24 +697,44 @@ def _labels(e: dict) -> dict:
     return out
 
 
+def _key(results: dict, colors: dict, multi_seed: bool, fz_max: float) -> list:
+    """The figure's legend, said once: each method (its colour, marker and line, "(= other)" where its curves equal
+    an earlier method's on every factor), then the encodings every panel shares."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    methods = list(results["methods"])
+    per_factor = [_labels(e) for e in results["factors"].values()]
+    handles = []
+    for k, m in enumerate(methods):
+        said = {lab.get(m, _name(m)) for lab in per_factor}
+        handles.append(Line2D([], [], color=colors[m], ls=_LINES[k % len(_LINES)], marker=style.marker(m),
+                              ms=5 - 0.5 * (k % 3), mfc="none" if k % 2 else colors[m],
+                              label=said.pop() if len(said) == 1 else _name(m)))
+    if multi_seed:
+        handles.append(Line2D([], [], color="0.35", marker="|", ms=9, ls="none",
+                              label=f"bar: ± std over {len(results['seeds'])} seeds"))
+    handles += [Line2D([], [], color="0.35", marker="x", ms=8, ls="none",
+                       label="x: the error doubles (dashed vertical: at that level)"),
+                Line2D([], [], color="0.35", ls=":", lw=1, label="dotted: 2x the method's nominal error")]
+    if "force" in results["factors"]:
+        handles.append(Patch(facecolor="0.9", label=f"grey band: Fz beyond the training range (> {fz_max:g} N)"))
+    return handles
+
+
+@style.plots
 def plot(results: dict, out: Path) -> list[Path]:
-    """stability_<factor>.png per factor, stability.png (all factors) and seeds.png (with >= 2 seeds), each
-    stamped with preset, seeds and commit; error bars only over >= 2 seeds; legends outside the axes."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """stability_<factor>.png per factor, stability.png (all factors, the encoding said once in a figure-level
+    legend) and seeds.png (with >= 2 seeds), each stamped with preset, seeds and commit; error bars only over >= 2
+    seeds."""
     colors = {m: style.colour(m) for m in results["methods"]}
     paths = []
     fz_max = float(results["config"]["data"]["fz_max"])
     multi_seed = len(results["seeds"]) >= 2
+    key = _key(results, colors, multi_seed, fz_max)
 
     def stamp(fig):
         common.stamp(fig, results["preset"], results["seeds"], results.get("commit", "?"))
-
-    def legend(ax):
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)
 
     def draw(ax, fn, e):
         labels = _labels(e)
@@ -723,53 +742,65 @@ def plot(results: dict, out: Path) -> list[Path]:
         for k, m in enumerate(e["methods"]):
             _curve(ax, e, m, k, len(e["methods"]), colors[m], labels[m], multi_seed, cats)
         _thresholds(ax, e, colors, multi_seed)
-        if fn == "force":
-            ax.axvspan(fz_max, max(e["levels"]) + fz_max / 6, color="0.9", zorder=0, label="beyond training")
+        if fn == "force":  # the forces no training press reached: shaded, and said so where it is
+            ax.axvspan(fz_max, max(e["levels"]) + fz_max / 6, color="0.9", zorder=0)
+            ax.text(fz_max, 0.03, " beyond training", transform=ax.get_xaxis_transform(), ha="left", va="bottom",
+                    fontsize=7, color="0.35")
         if cats is not None:
             ax.set_xticks(range(len(cats)))
-            ax.set_xticklabels(cats, fontsize=8)
+            ax.set_xticklabels(cats)
             ax.set_xlim(-0.5, len(cats) - 0.5)
-        ax.set_xlabel(_axis_label(e["label"], cats is not None), fontsize=8)
-        ax.set_ylabel("normalized L1 error (%)", fontsize=8)
-        ax.set_title(f"{fn.replace('_', ' ')} (x: error doubles; dotted: 2x nominal)", fontsize=9)
+        ax.set_xlabel(_axis_label(e["label"], cats is not None))
+        style.error_axis(ax)
+        ax.set_title(fn.replace("_", " "))
+        ax.grid(alpha=0.25)
 
     for fn, e in results["factors"].items():
-        fig, ax = plt.subplots(figsize=(7.5, 3.8))
+        fig, ax = style.figure(figsize=(9.0, 3.9))
         draw(ax, fn, e)
-        legend(ax)
+        ax.set_title(f"Stability: error against {fn.replace('_', ' ')} (preset {results['preset']})")
+        ax.legend(handles=[h for h in key if fn == "force" or not h.get_label().startswith("grey band")],
+                  loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0, fontsize=7)
         stamp(fig)
-        paths.append(save_png(fig, out / f"stability_{fn}.png"))
+        paths.append(style.save(fig, out / f"stability_{fn}.png"))
     n = len(results["factors"])
     cols = min(3, n)
-    fig, axes = plt.subplots((n + cols - 1) // cols, cols, figsize=(5 * cols + 2, 3.6 * ((n + cols - 1) // cols)),
+    rows = (n + cols - 1) // cols
+    spare = rows * cols - n  # empty slots at the end: the legend goes there, else below the panels
+    fig, axes = style.figure(rows + (spare == 0), cols, figsize=(5.6 * cols, 4.0 * (rows + (spare == 0))),
                              squeeze=False)
     for ax, (fn, e) in zip(axes.flat, results["factors"].items()):
         draw(ax, fn, e)
-    for ax in list(axes.flat)[n:]:
+    rest = list(axes.flat)[n:]
+    for ax in rest:
         ax.axis("off")
-    legend(axes.flat[min(n, cols) - 1])
-    fig.suptitle(f"Stability: error against each factor (preset {results['preset']}, seeds {results['seeds']})")
+    if rest:
+        rest[0].legend(handles=key, loc="upper left" if len(rest) > 1 else "center", fontsize=11,
+                       title="key (every panel)", title_fontsize=11, frameon=False)
+    fig.suptitle(f"Stability: error against each factor (preset {results['preset']}, "
+                 f"{len(results['seeds'])} seed{'s' if multi_seed else ''})", fontsize=13)
     stamp(fig)
-    paths.append(save_png(fig, out / "stability.png"))
+    paths.append(style.save(fig, out / "stability.png", bottom=0.01))
 
     if not multi_seed:  # one dot per method says nothing about a spread
         (out / "seeds.png").unlink(missing_ok=True)
         return paths
     ss = results["seed_spread"]
-    fig, ax = plt.subplots(figsize=(7.5, 3.8))
+    fig, ax = style.figure(figsize=(8.0, 3.9))
     keys = ("unseen_objects", "unseen_sensors", "digit")
     for i, (m, v) in enumerate(ss.items()):
         for j, k in enumerate(keys):
             vals = v[k]["values"]
-            ax.scatter([j + 0.12 * (i - len(ss) / 2)] * len(vals), vals, color=colors.get(m), s=14,
+            ax.scatter([j + 0.12 * (i - len(ss) / 2)] * len(vals), vals, color=colors.get(m, style.colour(m)), s=14,
                        marker=style.marker(m), label=_name(m) if j == 0 else None)
     ax.set_xticks(range(len(keys)))
     ax.set_xticklabels(["unseen objects (Table I mean)", "Table II mean", "DIGIT"])
-    ax.set_ylabel("normalized L1 error (%)")
-    ax.set_title(f"Seed to seed spread: one dot per seed ({len(results['seeds'])} seeds)", fontsize=10)
-    legend(ax)
+    style.error_axis(ax)
+    ax.grid(axis="y", alpha=0.25)
+    ax.set_title(f"Seed to seed spread: one dot per seed ({len(results['seeds'])} seeds)")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)
     stamp(fig)
-    paths.append(save_png(fig, out / "seeds.png"))
+    paths.append(style.save(fig, out / "seeds.png", bottom=0.03))  # the footer clear of the tick labels
     return paths
 
 

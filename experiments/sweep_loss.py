@@ -64,7 +64,7 @@ def scores(ev: dict) -> dict:
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], experiment="sweep_loss",
+    ap = common.base_parser(__doc__, experiment="sweep_loss",
                             costs={"quick": "reuses an ablation's runs (--ablation)"})
     ap.add_argument("--betas", type=cli.number(0, inclusive=True), nargs="+", default=list(DEFAULT_BETAS),
                     help="depth-loss weights")
@@ -172,7 +172,13 @@ def _against_no_head(z: dict, b: dict) -> str:
 
 def finding(results: dict) -> str:
     """Plain sentences from the numbers, per metric: no head against the base's default beta (the cells with the
-    most seeds) and against the best other beta, each judged against the seeds' spread."""
+    most seeds) and against the best other beta, each judged against the seeds' spread; at a preset that judges
+    nothing (common.verdicts: smoke) the numbers alone, and one sentence saying so."""
+    judge = common.verdicts(results)
+
+    def against(z: dict, b: dict) -> str:
+        return f": {_against_no_head(z, b)}" if judge else ""
+
     pb = results["per_beta"]
     zero = pb.get("0")
     weighted = {k: v for k, v in pb.items() if v["beta"] > 0}
@@ -187,20 +193,21 @@ def finding(results: dict) -> str:
         parts = [f"On {METRICS[m]}, no head reads {_fmt(z)}%"]
         if base_beta in weighted:
             d = weighted[base_beta][m]
-            parts.append(f"the default beta/alpha = {weighted[base_beta]['ratio']:g} {_fmt(d)}%: "
-                         f"{_against_no_head(z, d)}")
+            parts.append(f"the default beta/alpha = {weighted[base_beta]['ratio']:g} {_fmt(d)}%{against(z, d)}")
         others = {k: v for k, v in weighted.items() if k != base_beta}
         if others:
             k = min(others, key=lambda k: others[k][m]["mean"])
             b = others[k][m]
             seeds = f"{b.get('n', 1)} seed{'s' if b.get('n', 1) > 1 else ''}"
-            low = "; the lowest of several one-seed points is biased low" if b.get("n", 1) == 1 and len(others) > 1 \
-                else ""
-            parts.append(f"the lowest other beta/alpha, {others[k]['ratio']:g} ({seeds}), {_fmt(b)}%: "
-                         f"{_against_no_head(z, b)}{low}")
+            low = "; the lowest of several one-seed points is biased low" \
+                if judge and b.get("n", 1) == 1 and len(others) > 1 else ""
+            parts.append(f"the lowest other beta/alpha, {others[k]['ratio']:g} ({seeds}), {_fmt(b)}%"
+                         f"{against(z, b)}{low}")
         out.append("; ".join(parts) + ".")
     single = [k for k, v in pb.items() if len(v["per_seed"]) == 1]
-    if len(single) == len(pb):
+    if not judge:
+        out.append(common.no_verdict(results))
+    elif len(single) == len(pb):
         out.append("One seed per beta: differences of a few tenths of a percent are within run-to-run noise "
                    "(run --seeds 3 to measure it).")
     elif single:
@@ -263,12 +270,9 @@ def write_all(results: dict, out: Path) -> None:
     common.write_json(out / "results.json", results)
 
 
+@style.plots
 def plot(results: dict, path: Path) -> Path:
     """Error against beta/alpha: beta = 0 in its own narrow panel, beta > 0 on a log axis; dots = seeds."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.ticker import FixedFormatter, FixedLocator, NullLocator
 
     pb = results["per_beta"]
@@ -276,7 +280,7 @@ def plot(results: dict, path: Path) -> Path:
     pos = sorted((v for v in pb.values() if v["beta"] > 0), key=lambda v: v["ratio"])
     shown = [m for m in ("unseen_objects", "unseen_sensors", "digit")
              if any(np.isfinite(v[m]["mean"]) for v in pb.values())]
-    fig, axes = plt.subplots(1, 2 * len(shown), figsize=(4.6 * len(shown), 3.6), squeeze=False,
+    fig, axes = style.figure(1, 2 * len(shown), figsize=(5.0 * len(shown), 3.9), squeeze=False,
                              gridspec_kw={"width_ratios": [1, 4] * len(shown)})
 
     def mean_dot(ax, x, v, m, marker, color):
@@ -298,7 +302,7 @@ def plot(results: dict, path: Path) -> Path:
         a0.set_xticks([0])
         a0.set_xticklabels(["0\n(no head)"])
         a0.set_xlim(-1, 1)
-        a0.set_ylabel("normalized L1 error (%)", fontsize=8)  # the metric is the panel's title
+        style.error_axis(a0)  # the metric is the panel's title
         if pos:
             x = [v["ratio"] for v in pos]
             a1.plot(x, [v[m]["mean"] for v in pos], "-", color=head, zorder=2)
@@ -319,11 +323,13 @@ def plot(results: dict, path: Path) -> Path:
         a1.set_xlabel("beta / alpha (depth-loss weight)")
         a1.sharey(a0)
         a1.tick_params(labelleft=False)
-        a1.set_title(METRICS[m], fontsize=9)
+        a1.set_title(METRICS[m])
+        for a in (a0, a1):
+            a.grid(axis="y")
     fig.suptitle(f"Loss-weight sweep ({style.name(results['base'])}, preset {results['preset']}, "
-                 f"{_seed_text(results)})", fontsize=10)
+                 f"{_seed_text(results)})")
     common.stamp(fig, results["preset"], [], results.get("commit", "?"), seeds_text=seeds_said(results))
-    return tables.save_png(fig, Path(path), bottom=0.015)  # the footer, under the right panel's x label, clear of it
+    return style.save(fig, Path(path), bottom=0.015)  # the footer, under the right panel's x label, clear of it
 
 
 if __name__ == "__main__":

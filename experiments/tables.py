@@ -61,8 +61,10 @@ def _lowers_text(per_target: dict) -> str:
 
 def findings(results: dict) -> dict:
     """One plain sentence per table: does the paper's finding (ordering, gaps) show in our numbers? Gaps within
-    the seeds' spread (or below the tables' resolution with one seed) are reported as ties."""
+    the seeds' spread (or below the tables' resolution with one seed) are reported as ties. A run whose preset
+    judges nothing (common.verdicts: smoke) keeps the rankings, without a verdict, and "note" says so once."""
     t1, t2, t3 = results["table1"], results["table2"], results["table3"]
+    judge = common.verdicts(results)
     out = {}
 
     def order(table):
@@ -71,7 +73,10 @@ def findings(results: dict) -> dict:
     def says(claim: str, holds, detail: str) -> str:
         verdict = {None: "not measured", "tie": "tie, not resolved (within seed noise)", True: "reproduces",
                    False: "does NOT reproduce"}[holds]
-        return f"{claim}: {verdict} ({detail})."
+        return f"{claim}: {verdict} ({detail})." if judge else ""
+
+    def joined(sentences) -> str:
+        return " ".join(x for x in sentences if x)
 
     def extreme(table, method, ranked) -> bool | str:
         """Is `method` last in `ranked`? "tie" when it and its nearest rival there are within noise (e.g.
@@ -105,9 +110,9 @@ def findings(results: dict) -> dict:
         d, r = _m(t1["dino_rd"]["mean"]), _m(t1["resnet_rd"]["mean"])
         s.append(says("ViT beats ResNet (DINO RD < ResNet RD)", _less(t1["dino_rd"]["mean"], t1["resnet_rd"]["mean"]),
                       f"{d:.1f}% vs {r:.1f}%"))
-    if all(_seeds(t1[m]["mean"]) < 2 for m in t1):
+    if judge and all(_seeds(t1[m]["mean"]) < 2 for m in t1):
         s.append("One seed: these gaps are not tested against seed noise (ties are only gaps under 0.05 points).")
-    out["table1"] = " ".join(s)
+    out["table1"] = joined(s)
 
     rank2 = order(t2)
     ranked = ", ".join(f"{_name(m)} {_m(t2[m]['mean']):.1f}%" for m in rank2)
@@ -125,7 +130,7 @@ def findings(results: dict) -> dict:
     if has(t2, "dino_rd"):
         s.append(says("DINO RD has the lowest mean", extreme(t2, "dino_rd", rank2[::-1]),
                       ends(t2, rank2, "lowest")))
-    out["table2"] = " ".join(s)
+    out["table2"] = joined(s)
 
     s = []
     if t3:
@@ -148,7 +153,9 @@ def findings(results: dict) -> dict:
         s.append(says("DINO RD's uncalibrated sensors degrade least after a GelSight calibration (paper 4% vs "
                       "12-25%)", least == "dino_rd" if "dino_rd" in deg else None,
                       ", ".join(f"{_name(m)} {v:+.1f}%" for m, v in deg.items())))
-    out["table3"] = " ".join(s)
+    out["table3"] = joined(s)
+    if not judge:
+        out["note"] = common.no_verdict(results)
     return out
 
 
@@ -225,83 +232,124 @@ def table3_md(results: dict) -> tuple[str, list, list]:
                   "degradation_pct"], csv_rows
 
 
+@style.plots
 def plot_all(results: dict, out: Path) -> list[Path]:
-    """table{1,2,3}.png: our bars beside the paper's ticks; error bars only over >= 2 seeds; legends outside the
-    data; preset, seeds and commit stamped on each figure."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """table{1,2,3}.png: per method our bar (filled, its colour) with the paper's value beside it (hollow, hatched,
+    the same colour: style.paper_bars), never on it; error bars only over >= 2 seeds; a paper value far above our
+    bars is clipped at the top with its number written there; legends outside the data; preset, seeds and commit
+    stamped on each figure."""
     paths = []
     methods = list(results["table1"])
     multi_seed = len(results.get("seeds", [])) >= 2
     hatches = _hatches(results["table1"])
-
-    def finish(fig, ax, path):
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
-        common.stamp(fig, results["preset"], results.get("seeds", []), results.get("commit", "?"))
-        paths.append(save_png(fig, path))
-
-    def bars(ax, groups, getter, paper=None):
-        width = 0.8 / len(methods)
-        x = np.arange(len(groups))
-        for i, m in enumerate(methods):
-            vals = [getter(m, g) for g in groups]
-            err = [v["std"] if v else 0 for v in vals] if multi_seed else None
-            ax.bar(x + i * width, [_m(v) for v in vals], width, yerr=err, capsize=2 if multi_seed else 0,
-                   label=_name(m) + (" (= " + hatches[m][1] + ")" if hatches[m][1] else ""), color=style.colour(m),
-                   hatch=hatches[m][0], edgecolor="white" if hatches[m][0] else None)
-        if paper:
-            for i, m in enumerate(methods):
-                if m in paper:
-                    ax.scatter(x + i * width, paper[m][: len(groups)], **style.PAPER,
-                               label=style.PAPER_LABEL if i == min(j for j, mm in enumerate(methods) if mm in paper)
-                               else None)
-        ax.set_xticks(x + 0.4 - width / 2)
-        ax.set_ylabel("normalized L1 error (%)")
-
     seeds_txt = f"mean ± std over {len(results['seeds'])} seeds" if multi_seed else "1 seed, no error bars"
 
-    def ticks_txt(paper, what):  # name the paper's stars only where some are drawn (not for e.g. a scratch run)
-        return f"; stars: {what}" if any(m in paper for m in methods) else ""
+    def key(ax, paper_drawn: bool, clipped: int = 0):
+        from matplotlib.patches import Patch
+
+        handles = [Patch(facecolor=style.colour(m), hatch=hatches[m][0], edgecolor="white" if hatches[m][0] else None,
+                         label=_name(m) + (f" (= {hatches[m][1]})" if hatches[m][1] else "")) for m in methods]
+        bars_said = style.bar_key(seeds_txt)
+        handles += [bars_said[0]] + ([bars_said[1]] if paper_drawn else []) + (style.clipped_key() if clipped else [])
+        ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+
+    def finish(fig, path):
+        common.stamp(fig, results["preset"], results.get("seeds", []), results.get("commit", "?"))
+        paths.append(style.save(fig, path))
+
+    def bars(ax, groups, getter, paper: dict, index) -> tuple[bool, int]:
+        """Each method's bars over the groups; paper: its values by group index (`index(group)`). Returns whether
+        any paper value was drawn, and how many were clipped at the axis' top."""
+        slot = 0.84 / len(methods)
+        ours_w, paper_w = 0.56 * slot, 0.38 * slot
+        x = np.arange(len(groups))
+        vals = {m: [getter(m, g) for g in groups] for m in methods}
+        high = max((_m(v) + (v["std"] if multi_seed else 0) for vs in vals.values() for v in vs
+                    if v and np.isfinite(_m(v))), default=1.0)
+        cols = {m: [index(g) for g in groups] for m in methods if m in paper}
+        theirs = {m: [paper[m][i] if i is not None and i < len(paper[m]) else np.nan for i in cols[m]] for m in cols}
+        top = style.paper_top(high, [v for vs in theirs.values() for v in vs])
+        clipped = 0
+        for i, m in enumerate(methods):
+            left = x - 0.42 + i * slot
+            err = [v["std"] if v else 0 for v in vals[m]] if multi_seed else None
+            ax.bar(left + ours_w / 2, [_m(v) for v in vals[m]], ours_w, yerr=err, capsize=1.5 if multi_seed else 0,
+                   color=style.colour(m), hatch=hatches[m][0], edgecolor="white" if hatches[m][0] else None,
+                   error_kw={"lw": 0.9, "zorder": 4}, zorder=3)
+            if m in theirs:
+                clipped += style.paper_bars(ax, left + ours_w + paper_w / 2, theirs[m], paper_w, m, top)
+        ax.set_ylim(0, top)
+        ax.set_xticks(x)
+        ax.set_xlim(-0.55, len(groups) - 0.45)
+        style.error_axis(ax)
+        ax.grid(axis="y")
+        return bool(theirs), clipped
 
     t1 = results["table1"]
     objs = [o for o in P.OBJECTS if o in t1[methods[0]]] + ["mean"]
-    fig, ax = plt.subplots(figsize=(13, 4.2))
-    bars(ax, objs, lambda m, g: t1[m].get(g), {m: v for m, v in P.TABLE1.items()})
+    fig, ax = style.figure(figsize=(13, 4.4))
+    # the paper's row holds its objects in P.OBJECTS' order, then the mean: matched by name, not by position
+    drawn = bars(ax, objs, lambda m, g: t1[m].get(g), P.TABLE1,
+                 lambda g: len(P.OBJECTS) if g == "mean" else P.OBJECTS.index(g))
     ax.set_xticklabels([o.replace("_", " ") for o in objs], rotation=30, ha="right")
-    ax.set_title(f"Table I: unseen objects ({seeds_txt}{ticks_txt(P.TABLE1, 'the paper, real sensor')})")
-    finish(fig, ax, out / "table1.png")
+    ax.set_title(f"Table I: unseen objects, trained on mini-1/gel-1 ({seeds_txt})")
+    key(ax, *drawn)
+    finish(fig, out / "table1.png")
 
     t2 = results["table2"]
     keys = [P.sensor_label(s) for s in P.SENSORS] + ["mean"]
-    fig, ax = plt.subplots(figsize=(13, 4.2))
-    bars(ax, keys, lambda m, g: t2[m].get(g), {m: v for m, v in P.TABLE2.items()})
+    fig, ax = style.figure(figsize=(13, 4.4))
+    drawn = bars(ax, keys, lambda m, g: t2[m].get(g), P.TABLE2, lambda g: keys.index(g))
     ax.set_xticklabels(keys, rotation=30, ha="right")
-    ax.set_title(f"Table II: trained on mini-1/gel-1 ({seeds_txt}{ticks_txt(P.TABLE2, 'the paper')})")
-    finish(fig, ax, out / "table2.png")
+    ax.set_title(f"Table II: every GelSight unit x gel, trained on mini-1/gel-1 ({seeds_txt})")
+    key(ax, *drawn)
+    finish(fig, out / "table2.png")
 
     t3 = results["table3"]
     targets = [P.sensor_label(t) for t in P.CALIB_TARGETS]
-    fig, axes = plt.subplots(1, len(targets), figsize=(13, 3.8), sharey=False)
-    for ax, t in zip(np.atleast_1d(axes), targets):
+    fig, axes = style.figure(1, len(targets), figsize=(13.5, 4.0), squeeze=False)
+    axes = axes[0]
+    drawn, clipped = False, 0
+    for j, (ax, t) in enumerate(zip(axes, targets)):
         x = np.arange(len(methods))
-        for dx, when, color in ((-0.2, "before", "0.75"), (0.2, "after", "tab:blue")):
-            cells = [t3[m][t][when] for m in methods]
-            ax.bar(x + dx, [_m(c) for c in cells], 0.4, label=f"{when} calibration", color=color,
-                   yerr=[c["std"] for c in cells] if multi_seed else None, capsize=2 if multi_seed else 0)
-        paper_x = [i for i, m in enumerate(methods) if m in P.TABLE3]
-        if paper_x:  # no legend entry for stars that are not drawn
-            ax.scatter([i + 0.2 for i in paper_x], [P.TABLE3[methods[i]][targets.index(t)] for i in paper_x],
-                       **style.PAPER, label=style.PAPER_LABEL + ", after")
+        w = 0.28
+        high = 1.0
+        for i, m in enumerate(methods):
+            c = style.colour(m)
+            for dx, when, alpha in ((-w, "before", 0.35), (0.0, "after", 1.0)):
+                if t not in t3[m]:
+                    continue
+                cell = t3[m][t][when]
+                err = cell["std"] if multi_seed else None
+                ax.bar(i + dx, _m(cell), w, yerr=err, color=c, alpha=alpha, capsize=1.5 if multi_seed else 0,
+                       error_kw={"lw": 0.9, "zorder": 4}, zorder=3)
+                high = max(high, _m(cell) + (err or 0))
+        paper = {m: P.TABLE3[m][j] for m in methods if m in P.TABLE3}  # P.TABLE3: in CALIB_TARGETS' order
+        top = style.paper_top(high, paper.values())
+        for i, m in enumerate(methods):
+            if m in paper:
+                clipped += style.paper_bars(ax, [i + w], [paper[m]], w, m, top)
+                drawn = True
+        ax.set_ylim(0, top)
         ax.set_xticks(x)
-        ax.set_xticklabels([_name(m) for m in methods], rotation=30, ha="right", fontsize=7)
-        ax.set_title(f"{t} ({t3[methods[0]][t]['layers']})")
-    np.atleast_1d(axes)[0].set_ylabel("normalized L1 error (%)")
+        ax.set_xticklabels([_name(m) for m in methods], rotation=30, ha="right")
+        ax.set_xlim(-0.6, len(methods) - 0.4)
+        ax.grid(axis="y")
+        layers = next((t3[m][t]["layers"] for m in methods if t in t3[m]), "")
+        ax.set_title(f"{t} (layers tuned: {layers})")
+    style.error_axis(axes[0])
     fig.suptitle(f"Table III: calibration with {results['config']['data']['calib_samples']} Big Sphere presses "
                  f"({seeds_txt})")
-    finish(fig, np.atleast_1d(axes)[-1], out / "table3.png")
+    from matplotlib.patches import Patch
+
+    ours, theirs = style.bar_key(seeds_txt)
+    ours.set_label(f"{style.OURS_LABEL}, after calibration: {seeds_txt}")
+    theirs.set_label(f"{style.PAPER_LABEL}, after calibration")
+    before = Patch(facecolor="0.45", alpha=0.35, label=f"{style.OURS_LABEL}, before calibration (pale)")
+    axes[-1].legend(handles=[*style.method_key(methods), before, ours] + ([theirs] if drawn else [])
+                    + (style.clipped_key() if clipped else []),
+                    loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)
+    finish(fig, out / "table3.png")
     return paths
 
 
@@ -318,41 +366,14 @@ def _hatches(t1: dict) -> dict:
     out, seen = {}, {}
     for m, cells in t1.items():
         key = json.dumps({k: _m(v) for k, v in cells.items()}, sort_keys=True)
-        out[m] = ("//", _name(seen[key])) if key in seen else (None, "")
+        out[m] = ("..", _name(seen[key])) if key in seen else (None, "")
         seen.setdefault(key, m)
     return out
 
 
 def save_png(fig, path: Path, then=None, bottom: float = 0.0) -> Path:
-    """Tight layout (the axes below the figure's title), atomic write (tmp + rename), close. then: called with no
-    arguments once the layout is final, before the write (e.g. common.label_points, which needs the layout).
-    bottom: a strip kept free below the axes (figure fraction), e.g. for a footer (the stamp) under a long x label."""
-    import matplotlib.pyplot as plt
-
-    fig.tight_layout(rect=(0, bottom, 1, 1))
-    title = _suptitle(fig)  # on a tall grid tight_layout can put the top row's titles under the figure's title
-    if title is not None:
-        renderer = fig.canvas.get_renderer()
-        below = title.get_window_extent(renderer).y0 / fig.bbox.height
-        axes = [ax for ax in fig.axes if ax.get_visible()]
-        top = max((ax.get_tightbbox(renderer).y1 / fig.bbox.height for ax in axes), default=0.0)
-        if top > below - 0.005:
-            fig.tight_layout(rect=(0, bottom, 1, below - 0.01))
-    if then is not None:
-        then()
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    tmp.replace(path)
-    return path
-
-
-def _suptitle(fig):
-    """The figure title's Text artist, None when there is none: `fig.get_suptitle()` (public API) gives its string,
-    and `fig.suptitle` puts the artist among `fig.texts`; the last with that text is it (suptitle reuses its
-    artist, so a second call leaves one)."""
-    text = fig.get_suptitle()
-    return next((t for t in reversed(fig.texts) if t.get_text() == text), None) if text else None
+    """style.save (kept under this name for the diagnostics that import it from here)."""
+    return style.save(fig, path, then=then, bottom=bottom)
 
 
 def seed_span(seeds) -> str:
@@ -409,5 +430,5 @@ def console_summary(results: dict) -> str:
         cal = ", ".join(f"{t} {_m(c['after']):.1f}%" for t, c in t3.items())
         lines.append(f"  {_name(m):10s} Table I {_m(results['table1'][m]['mean']):5.1f}%   "
                      f"Table II {_m(results['table2'][m]['mean']):5.1f}%   Table III {cal}")
-    lines += ["", *results["findings"].values()]
+    lines += ["", *(text for text in results["findings"].values() if text)]
     return "\n".join(lines)

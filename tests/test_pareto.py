@@ -87,13 +87,11 @@ def test_seed_span():
 
 def test_point_labels_miss_each_other_and_stay_in_the_axes():
     """Crowded points, some at the axes' edge: every label inside the axes and clear of the others."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.text import Text
 
-    fig, ax = plt.subplots(figsize=(4, 3))
+    from experiments import style
+
+    fig, ax = style.figure(figsize=(4, 3))  # outside pyplot: no backend switched for the rest of the suite
     pts = [(0.0, 0.0), (0.02, 0.01), (0.04, -0.01), (1.0, 1.0), (0.98, 0.99), (0.5, 0.5)]
     ax.scatter(*zip(*pts))
     ax.set(xlim=(-0.05, 1.05), ylim=(-0.05, 1.05))
@@ -107,4 +105,3 @@ def test_point_labels_miss_each_other_and_stay_in_the_axes():
     frame = ax.get_window_extent(renderer)
     assert all(frame.x0 <= b.x0 and b.x1 <= frame.x1 and frame.y0 <= b.y0 and b.y1 <= frame.y1 for b in boxes)
     assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
-    plt.close(fig)

@@ -411,15 +411,12 @@ def only_report(res: dict) -> str:
 
 
 def _save(fig, res: dict, out: Path, name: str) -> str:
-    """Stamp a figure with the commit it measured, write it to out/name and close it; its path."""
-    import matplotlib.pyplot as plt
-
+    """Stamp a figure with the commit it measured, write it to out/name; its path."""
     fig.text(0.995, 0.005, f"ffjax bench · commit {str(res.get('commit', '?'))[:7]}", ha="right", va="bottom",
              fontsize=7, color="0.35")
     fig.tight_layout()
     path = Path(out) / name
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return str(path)
 
 
@@ -431,17 +428,14 @@ def plots(res: dict, out: Path) -> list[str]:
     sc = res.get("scaling")
     if not sc:
         return files
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from experiments import style
 
     labels = {"batch": "batch size", "size": "image size (px)", "model": "ViT dim/depth/heads"}
     for axis, pts in sc.items():
         if not pts:
             continue
         # time and memory side by side: twin y axes drew the two curves on top of each other, without a legend
-        fig, (ax, ax2) = plt.subplots(1, 2, figsize=(8.5, 3.4))
+        fig, (ax, ax2) = style.figure(1, 2, figsize=(8.5, 3.4))
         xs = [str(p["x"]) for p in pts]
         ax.plot(xs, [p["ms"] for p in pts], "o-", color="C0")
         ax.set_ylabel("train step (ms)")
@@ -460,13 +454,10 @@ def plots(res: dict, out: Path) -> list[str]:
 def sim_plot(res: dict, out: Path) -> str:
     """sim_speed.png: presses/s of the batched solves against the batch size, per render size (one thread, and
     the pieces solved one per core where measured), with the numpy reference's rate as a flat line."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from experiments import style
 
     rates = res["sim_speed"]["rates"]
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig, ax = style.figure(figsize=(6.4, 4.0))
     for i, (size, v) in enumerate(rates.items()):
         colour = f"C{i}"
         bs = sorted(v["batched_s"], key=int)
@@ -501,14 +492,11 @@ def sim_plot(res: dict, out: Path) -> str:
 def path_plot(res: dict, out: Path) -> str:
     """path_convergence.png: the oblique path's distance to its converged self against its time a press, per
     quadrature, each point a number of steps: the tangential force (median, and p90 dashed) and the depth (max)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from experiments import style
 
     pc = res["sim_speed"]["path"]
     default = (pc["default"]["steps"], pc["default"]["quadrature"])
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(9.0, 3.8))
+    fig, (ax, ax2) = style.figure(1, 2, figsize=(9.0, 3.8))
     quadratures = sorted({r["quadrature"] for r in pc["rows"]})
     by_q = {q: sorted((r for r in pc["rows"] if r["quadrature"] == q), key=lambda r: r["steps"]) for q in quadratures}
     for i, (q, rows) in enumerate(by_q.items()):

@@ -130,18 +130,13 @@ def report(res: dict) -> str:
 
 
 def plot(res: dict, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from experiments import common
+    from experiments import common, style
     from experiments.tables import save_png
 
     cases = res["cases"]
     cols = len({c["sphere_fz_n"] for c in cases})
     rows = len(cases) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
+    fig, axes = style.figure(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
     styles = {"FE pressed": ("k", "-"), "FE flat": ("0.55", "--"), "model held": ("tab:orange", "-"),
               "model surface": ("tab:blue", ":")}
     for ax, c in zip(axes.ravel(), cases):
@@ -161,7 +156,7 @@ def main(argv=None) -> dict:
     from experiments import common
     from ffjax import cli
 
-    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
+    ap = argparse.ArgumentParser(prog=common.prog(), description=common.description(__doc__))
     ap.add_argument("--smoke", action="store_true", help="one case on a coarse mesh (seconds)")
     ap.add_argument("--out", default=None, help="results folder (default: results/buried_load_check)")
     args = ap.parse_args(argv)

@@ -145,13 +145,11 @@ def report_md(r: dict) -> str:
 
 
 def plot(r: dict, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.ticker import FixedLocator, NullLocator, ScalarFormatter
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    from experiments import style
+
+    fig, axes = style.figure(1, 2, figsize=(12, 4.5))
     done = [v for v in r["shapes"].values() if v.get("n")]
     largest = max((v["area_mm2"] for v in done if v["kind"] == "indenter"), default=None)
     for v in r["shapes"].values():
@@ -191,7 +189,7 @@ def plot(r: dict, path: Path) -> Path:
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "simulator only, no training"})
+    ap = common.base_parser(__doc__, costs={"quick": "simulator only, no training"})
     ap.add_argument("--per-shape", type=cli.integer(1), default=None, help="presses per shape (default by preset)")
     args = ap.parse_args(argv)
     cfg = common.config_from_args(ap, args)

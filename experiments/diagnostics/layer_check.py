@@ -205,13 +205,10 @@ def report_md(r: dict) -> str:
 
 
 def plot(r: dict, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from experiments import style
 
     shown = [s for s in PROFILE_SHAPES if s in r["shapes"]] or list(r["shapes"])[:2]
-    fig, axes = plt.subplots(2, max(len(shown), 2), figsize=(4 * max(len(shown), 2), 7.5), squeeze=False)
+    fig, axes = style.figure(2, max(len(shown), 2), figsize=(4 * max(len(shown), 2), 7.5), squeeze=False)
     for ax, s in zip(axes[0], shown):
         v = r["shapes"][s]
         w = v["rows"][-1]
@@ -260,7 +257,7 @@ def plot(r: dict, path: Path) -> Path:
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "simulator only, no training"})
+    ap = common.base_parser(__doc__, costs={"quick": "simulator only, no training"})
     args = ap.parse_args(argv)
     cfg = common.config_from_args(ap, args)
     out = Path(args.out or common.ROOT / "results" / f"layer_check-{args.preset}")

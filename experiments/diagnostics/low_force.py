@@ -218,9 +218,6 @@ def plot(res: dict, path: Path) -> Path:
     """Left: the bound relative to Fz against Fz per body; right: each model's mean signed Fz error."""
     import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from experiments import style
     from experiments.tables import save_png
 
@@ -229,12 +226,12 @@ def plot(res: dict, path: Path) -> Path:
     n = 1 + seating + len(models)
     cols = min(3, n)  # rows of at most 3 panels: five side by side are too small to read
     rows_n = -(-n // cols)
-    fig, axes = plt.subplots(rows_n, cols, figsize=(5.2 * cols, 3.9 * rows_n), squeeze=False)
+    fig, axes = style.figure(rows_n, cols, figsize=(5.2 * cols, 3.9 * rows_n), squeeze=False)
     axes = axes.ravel()
     for extra in axes[n:]:
         extra.set_visible(False)
     ax = axes[0]
-    colour = {b: plt.get_cmap("tab10")(i) for i, b in enumerate(BODIES)}  # distinct hues, none too pale
+    colour = {b: matplotlib.colormaps["tab10"](i) for i, b in enumerate(BODIES)}  # distinct hues, none too pale
     for b in BODIES:
         rows = [r for r in res["physics"] if r["body"] == b]
         ax.plot([r["fz"] for r in rows], [r["crb_rel"] for r in rows], "o-", color=colour[b], ms=4,
@@ -289,7 +286,7 @@ def main(argv=None) -> dict:
     from experiments import common
     from ffjax import cli
 
-    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
+    ap = argparse.ArgumentParser(prog=common.prog(), description=common.description(__doc__))
     ap.add_argument("--preset", default="quick", help="the preset whose sensor and render size to use")
     ap.add_argument("--data", default=None, help="dataset folder: its light training presses")
     ap.add_argument("--runs", nargs="*", default=[], help="training run folders whose Fz read to measure")

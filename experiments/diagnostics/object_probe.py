@@ -142,13 +142,10 @@ def markdown(res: dict) -> str:
 def plot(res: dict, path: Path) -> None:
     """The contact's share of the pad against the shear a model reads (its slope), one point per shape: a face
     that covers most of the view hides the contact's edge, where shear shows."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from experiments import style
 
     runs = list(res.get("readout", {}))
-    fig, axes = plt.subplots(1, max(len(runs), 1), figsize=(5.5 * max(len(runs), 1), 4.2), squeeze=False,
+    fig, axes = style.figure(1, max(len(runs), 1), figsize=(5.5 * max(len(runs), 1), 4.2), squeeze=False,
                              layout="constrained")
     to_label = []  # placed once the layout is final (below)
     for ax, run in zip(axes[0], runs or [None]):
@@ -172,11 +169,10 @@ def plot(res: dict, path: Path) -> None:
     for args in to_label:
         common.label_points(*args)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], costs={"quick": "reads two trained runs"})
+    ap = common.base_parser(__doc__, costs={"quick": "reads two trained runs"})
     ap.add_argument("--runs", nargs="*", default=[], help="training run folders (e.g. results/ablation-quick/runs/"
                     "dino_rd/seed0) whose read-out to measure")
     args = ap.parse_args(argv)

@@ -166,17 +166,12 @@ def report(res: dict) -> str:
 
 def plot(res: dict, path: Path) -> Path:
     """The drift over time (each source, per channel) and the per-channel noise, fixed pattern and gradient."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from experiments import common
+    from experiments import common, style
     from experiments.tables import save_png
 
     names = list(res["sources"])
     colours = ("tab:red", "tab:green", "tab:blue")
-    fig, axes = plt.subplots(1, 4, figsize=(15, 3.6))
+    fig, axes = style.figure(1, 4, figsize=(15, 3.6))
     ax = axes[0]
     for name in names:
         s = res["sources"][name]
@@ -209,7 +204,7 @@ def main(argv=None) -> dict:
     from experiments import common
     from ffjax import cli
 
-    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
+    ap = argparse.ArgumentParser(prog=common.prog(), description=common.description(__doc__))
     ap.add_argument("--recording", default=None, help="a real rest recording: DIR/background.png and DIR/tactile/*.png")
     ap.add_argument("--name", default="GelSight Mini (real)", help="the recording's name in the tables")
     ap.add_argument("--source", default=None, help="where the recording comes from, for the report (default: DIR)")

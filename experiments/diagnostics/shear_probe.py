@@ -247,7 +247,7 @@ def report(res: dict) -> str:
 def main(argv=None) -> dict:
     from experiments import common
 
-    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
+    ap = argparse.ArgumentParser(prog=common.prog(), description=common.description(__doc__))
     ap.add_argument("--out", default=None, help="results folder (default: results/shear_probe)")
     ap.add_argument("--data", default=None, help="dataset folder for the ridge probes (train and val splits)")
     ap.add_argument("--runs", nargs="*", default=[], help="training run folders whose backbone features to probe")

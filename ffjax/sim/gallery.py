@@ -10,14 +10,12 @@ from __future__ import annotations
 import argparse
 import os
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 from ffjax import cli
-from ffjax.sim import INDENTERS, SENSOR_NAMES, UNSEEN_OBJECTS, get_sensor, press  # noqa: E402
+from ffjax.sim import INDENTERS, SENSOR_NAMES, UNSEEN_OBJECTS, get_sensor, press
 
 
 def _nobg(s):
@@ -34,9 +32,11 @@ def _label(name: str) -> str:
 def _grid(samples, titles, path, cols=5, dmax=None):
     """Three rows per band of `cols` samples: frame, background-subtracted (x3), depth."""
     bands = (len(samples) + cols - 1) // cols
-    # constrained layout: tight_layout-free figures left a quarter of the page as blank margin
-    fig, axes = plt.subplots(3 * bands, cols, figsize=(2.4 * cols + 1.2, 2.0 * 3 * bands), squeeze=False,
-                             layout="constrained")
+    # constrained layout: tight_layout-free figures left a quarter of the page as blank margin. A Figure on its own
+    # Agg canvas, outside pyplot: no global backend is chosen or switched (a notebook's inline plots stay inline)
+    fig = Figure(figsize=(2.4 * cols + 1.2, 2.0 * 3 * bands), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(3 * bands, cols, squeeze=False)
     for ax in axes.ravel():
         ax.set_xticks([])
         ax.set_yticks([])
@@ -57,7 +57,6 @@ def _grid(samples, titles, path, cols=5, dmax=None):
         axes[3 * b + 2, c].set_title(f"depth max {s.depth.max():.2f} mm", fontsize=6)
     fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.25, label="depth (mm)")
     fig.savefig(path, dpi=80)
-    plt.close(fig)
     return path
 
 
@@ -90,7 +89,7 @@ def make(out: str, size=None) -> list[str]:
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m ffjax.sim.gallery", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", required=True)
+    ap.add_argument("--out", required=True, help="folder for the PNG grids")
     ap.add_argument("--size", type=cli.integer(2), nargs=2, default=None, metavar=("H", "W"),
                     help="render size (default native)")
     args = ap.parse_args(argv)
