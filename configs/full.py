@@ -1,9 +1,8 @@
-"""`full`: quick's model, data and schedule with three seeds and test sets twice as large; ~1 h on 2 cores.
+"""`full`: quick's model, data and schedule with three seeds and test sets twice as large, for a 2-core CPU.
 
-Why not longer training: on a 2-core CPU one seed of the five methods trains in ~13 min at quick (the
-ResNet is half of it), and DINO pretraining costs ~3 s per ResNet step (quick: 537 s for 180 steps), so
-600 steps would add ~30 min for the ResNet alone. The hour goes to the seeds (the spread every table
-reports) and to larger test sets (tighter means), which is what `full` is for.
+Why not longer training: on a 2-core CPU the budget goes to the seeds (the spread every table reports) and
+to larger test sets (tighter means), which is what `full` is for; longer DINO pretraining would cost the
+ResNet most (its pretraining step is the slowest; measured times in docs/training.md).
 """
 
 from configs.checks import derive

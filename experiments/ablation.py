@@ -21,7 +21,7 @@ from ffjax import registry
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], experiment="ablation",
+    ap = common.base_parser(__doc__, experiment="ablation",
                             costs={"quick": "every method, 1 seed (published: 3), its dataset made first where missing",
                                    "full": "every method, 3 seeds"})
     ap.add_argument("--methods", nargs="+", default=None, metavar="NAME",
@@ -55,8 +55,11 @@ def run(cfg: dict, methods, n_seeds: int, out, data_dir=None, force: bool = Fals
     timings["data_s"] = round(time.perf_counter() - t0, 1)
 
     specs = [registry.get(m) for m in methods]
-    backbones = {}
-    for kind in sorted({s.backbone for s in specs if s.pretrained}):
+    backbones, kinds = {}, sorted({s.backbone for s in specs if s.pretrained})
+    t = time.perf_counter()
+    if kernel.pretraining_corpus(cfg, kinds, data_root, force, progress):
+        timings["pretrain_corpus_s"] = round(time.perf_counter() - t, 1)
+    for kind in kinds:
         t = time.perf_counter()
         backbones[kind] = kernel.pretrained_backbone(cfg, kind, data_root, force, progress)
         timings[f"pretrain_{kind}_s"] = round(time.perf_counter() - t, 1)

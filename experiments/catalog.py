@@ -146,8 +146,8 @@ def _has(*keys) -> Callable[[dict], bool]:
 
 SEEDS = {"smoke": 1}  # the ablation's seeds per method in the pipeline; 3 elsewhere (smoke checks the plumbing)
 # Seeds of the cells only the sweep and the speed/accuracy chart train (the betas and sizes between the ablation's);
-# the cells they reuse take all the ablation's seeds. Quick keeps one: three would add ~70 min on a 2-core CPU,
-# and the ablation's 3-seed spreads (0.1-0.6 points) say how far a one-seed point can be trusted.
+# the cells they reuse take all the ablation's seeds. Quick keeps one: three would add more than an hour on a 2-core
+# CPU, and the ablation's 3-seed spreads say how far a one-seed point can be trusted.
 NEW_CELL_SEEDS = {"smoke": 1, "quick": 1}
 
 
@@ -184,9 +184,9 @@ EXPERIMENTS = (
                _has("per_beta"), _replot_sweep, args=_trains_seeds,
                reuses="ablation", figures=("experiments/tables.py", "experiments/style.py"),
                cell_seeds=lambda r: [len(v["per_seed"]) for v in r["per_beta"].values()], flags=_TRAINS),
-    # on request: its two more datasets (shares 0 and 0.5) and their trainings cost ~80 min on a 2-core Zen 1 VM
-    # (~35 on Zen 4), more than the sweep, the chart and stability together; it probes a parameter no frame can
-    # measure, where the rest are the paper's results and their companions
+    # on request: its two more datasets (shares 0 and 0.5) and their trainings cost more than the sweep, the chart
+    # and stability together (its measured time: docs/results/<preset>/reproduce.json); it probes a parameter no
+    # frame can measure, where the rest are the paper's results and their companions
     Experiment("pattern_share", "experiments.pattern_share",
                "Table II when none, half or all of the sensor's fine fixed pattern is the gel's pigment (a share no "
                "frame at rest can measure)", _has("per_share", "nominal_share"), _replot_pattern,

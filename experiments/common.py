@@ -19,7 +19,9 @@ import numpy as np
 
 import configs
 
-# re-exported: the experiments write their tables and files through common
+# re-exported: every experiment's --help description (its docstring's first paragraph); the experiments write
+# their tables and files through common
+from ffjax.cli import description  # noqa: F401
 from ffjax.results import fmt, md_table, mean_std, read_json, stamp, write_csv, write_json, write_text  # noqa: F401
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -34,8 +36,9 @@ def prog(spec=None) -> str | None:
 
 def measured_cost(experiment: str, preset: str) -> str | None:
     """What the published run of `experiment` at `preset` took, read from its own record
-    (docs/results/<preset>/reproduce.json: wall time, commit, machine), e.g. "measured 10 min at 496429f on AMD EPYC
-    (family 25, model 17), 2 cores"; None where none is published (or it was not run afresh there). Read, never
+    (docs/results/<preset>/reproduce.json: wall time, flags, commit, machine), as "measured <minutes> min with
+    --seeds 3 at <commit> on <CPU>, 2 cores": the flags it ran with beyond the preset and its folders, which a plain
+    run may not share; None where none is published (or it was not run afresh there). Read, never
     written into the source: a new run's time does not make the experiments' code stale."""
     record = ROOT / "docs" / "results" / preset / "reproduce.json"
     try:
@@ -45,26 +48,52 @@ def measured_cost(experiment: str, preset: str) -> str | None:
         if not this.get("fresh", True) or not this.get("wall_s"):
             return None
         minutes = float(this["wall_s"]) / 60
+        flags = _published_flags(this.get("argv") or [], preset)
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
     on = f" on {machine['cpu_model']}, {machine['cores']} cores" if {"cpu_model", "cores"} <= set(machine) else ""
-    return (f"measured {minutes:.0f} min at {str(this.get('commit', run.get('commit', '?')))[:7]}{on} "
-            f"({record.relative_to(ROOT)})")
+    return (f"measured {minutes:.0f} min{f' with {flags}' if flags else ''} at "
+            f"{str(this.get('commit', run.get('commit', '?')))[:7]}{on} ({record.relative_to(ROOT)})")
 
 
-def base_parser(description: str, default_preset: str = "quick", costs: dict | None = None,
+_FOLDER_FLAGS = ("--preset", "--out", "--data", "--ablation", "--work", "--publish")  # each followed by its value
+
+
+def _published_flags(argv: list, preset: str | None = None) -> str:
+    """A recorded run's flags less the preset, its folders, --quiet and a --seeds that is `preset`'s own: what a
+    plain run does not share, e.g. "--seeds 3"."""
+    try:
+        plain = {"--seeds": str(configs.get(preset)["seeds"])} if preset else {}
+    except configs.ConfigError:
+        plain = {}
+    said, args = [], [str(a) for a in argv]
+    while args:
+        flag = args.pop(0)
+        name, has_value = flag.split("=")[0], "=" in flag
+        if name in _FOLDER_FLAGS or name in plain:
+            value = flag.split("=", 1)[1] if has_value else (args.pop(0) if args else "")
+            if name in plain and value != plain[name]:
+                said.append(f"{name} {value}")
+        elif flag != "--quiet":
+            said.append(flag)
+    return " ".join(said)
+
+
+def base_parser(doc: str, default_preset: str = "quick", costs: dict | None = None,
                 experiment: str | None = None) -> argparse.ArgumentParser:
-    """The experiments' shared flags. costs: {preset: what a run does, in words (no timings: those go stale)},
+    """The experiments' shared flags. doc: the module's docstring, of which --help shows the whole first paragraph
+    (cli.description). costs: {preset: what a run does, in words (no timings: those go stale)},
     shown in --help and said at the start of a run with the published run's measured time where one is recorded
     (measured_cost), so nobody starts a half-hour job without knowing. experiment: its name in the published
     record (e.g. "sweep_loss"); None for a command the pipeline does not run (no measured time to show)."""
-    costs = {"smoke": "a minute or two, numbers meaningless", **(costs or {})}
+    costs = {"smoke": "toy sizes, a check of the plumbing whose numbers carry no verdict", **(costs or {})}
     for preset in configs.PRESETS:
         measured = measured_cost(experiment, preset) if experiment and preset != "smoke" else None
         if measured:
             costs[preset] = f"{costs[preset]}; {measured}" if preset in costs else measured
     # the caller's module, not __main__: experiments.reproduce runs each experiment in its own process
-    ap = argparse.ArgumentParser(prog=prog(sys._getframe(1).f_globals.get("__spec__")), description=description)
+    ap = argparse.ArgumentParser(prog=prog(sys._getframe(1).f_globals.get("__spec__")),
+                                 description=description(doc))
     ap.set_defaults(_costs=costs)
     ap.add_argument("--preset", default=default_preset, choices=configs.PRESETS,
                     help=f"size of data, models and training (default: {default_preset}). Cost: "
@@ -134,6 +163,26 @@ def n_seeds(ap, args, cfg: dict) -> int:
     return args.seeds
 
 
+def verdicts(results: dict) -> bool:
+    """Whether a run's report may judge its numbers (say "reproduces", "the head helps"): its config's
+    report.verdicts, off where the numbers only check the plumbing (the smoke preset); for a results.json written
+    before the key, its preset's value today (True for a preset this code lacks)."""
+    report = (results.get("config") or {}).get("report")
+    if isinstance(report, dict) and "verdicts" in report:
+        return bool(report["verdicts"])
+    try:
+        return bool(configs.get(results.get("preset"))["report"]["verdicts"])
+    except (configs.ConfigError, KeyError, TypeError):
+        return True
+
+
+def no_verdict(results: dict) -> str:
+    """The one sentence a report without verdicts (verdicts(results) False) carries instead of them."""
+    preset = results.get("preset") or (results.get("config") or {}).get("preset", "?")
+    return (f"Preset {preset}: its numbers check the plumbing and carry no verdict on the "
+            "paper's findings (config report.verdicts is off); the tables are written all the same.")
+
+
 def ablation_folder(ap, given, preset: str) -> Path:
     """The ablation results folder whose runs an experiment reuses: `given` (--ablation), which must exist (a typo
     used to retrain everything silently), else results/ablation-<preset>."""
@@ -147,15 +196,15 @@ def ablation_folder(ap, given, preset: str) -> Path:
 
 @functools.cache
 def git_commit() -> str:
-    """HEAD's hash, with "-dirty" when tracked files other than documentation (docs/, *.md) differ from it: numbers
-    then are not from a commit (results published and tables written by an earlier call are not code, so a
-    `reproduce --only` after a publishing one still runs on its commit). Read once per process, at the run's start
-    (config_from_args): a commit made while a run goes on is not its code."""
+    """HEAD's hash, with "-dirty" when tracked files other than documentation (docs/, *.md, the executed notebooks)
+    differ from it: numbers then are not from a commit (results published and tables written by an earlier call are
+    not code, so a `reproduce --only` after a publishing one still runs on its commit). Read once per process, at
+    the run's start (config_from_args): a commit made while a run goes on is not its code."""
     try:
         head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
                               check=True).stdout.strip()
         dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)docs",
-                                ":(exclude,glob)**/*.md"], cwd=ROOT,
+                                ":(exclude)notebooks", ":(exclude,glob)**/*.md"], cwd=ROOT,
                                capture_output=True, text=True, check=True).stdout.strip()
         return head + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):

@@ -58,7 +58,7 @@ TRUTH = "perfect"  # pseudo-method: the estimate is the true force (isolates the
 
 
 def main(argv=None) -> dict:
-    ap = common.base_parser(__doc__.strip().splitlines()[0], experiment="downstream",
+    ap = common.base_parser(__doc__, experiment="downstream",
                             costs={"quick": "reuses an ablation's checkpoints (--ablation)"})
     src = ap.add_mutually_exclusive_group()
     src.add_argument("--checkpoint", default=None, help="one trained run folder (e.g. runs/quick-dino_rd)")

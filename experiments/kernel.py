@@ -14,8 +14,9 @@ its stage holds the same key and is done.
 
 Several runs: `run_all(jobs, workers=2)` trains (and evaluates) the jobs that need training two at a time, each
 in its own process pinned to its half of the cores (common.default_workers: on a CPU). On the 2-core CPU a quick
-train step takes 159 ms on one core against 94 on two (DINO RD; ResNet RD 139 against 84), so two runs side
-by side finish 1.2x sooner. Their recorded train seconds are then one core's, beside another run.
+train step on two cores takes well over half its time on one, so two runs side by side finish sooner than one
+after the other (measured: docs/experiments.md). Their recorded train seconds are then one core's, beside another
+run.
 """
 
 from __future__ import annotations
@@ -96,6 +97,18 @@ def reusable(reuse_from, cfg: dict, spec, seed: int, data_root: Path) -> Path | 
         return None
     folder = run_dir(reuse_from, spec.name, seed).absolute()
     return folder if trained(folder, cfg, spec, seed, data_root) else None
+
+
+def pretraining_corpus(cfg: dict, kinds, data_root: Path, force: bool, progress: bool) -> bool:
+    """Build (or find) the unlabeled corpus the backbones of `kinds` pretrain on, when one of them will pretrain;
+    True when it was needed. The backbones share it: timed apart, the first backbone's time is its own."""
+    from ffjax.train import pretrain
+
+    root = Path(data_root) / "pretrained"
+    if not force and all(pretrain.is_cached(cfg, kind, root / kind) for kind in kinds):
+        return False
+    pretrain.corpus.load_or_build(cfg, root, progress=progress)
+    return True
 
 
 def pretrained_backbone(cfg: dict, kind: str, data_root: Path, force: bool, progress: bool):
@@ -264,9 +277,8 @@ def run_all(jobs: list[Job], workers: int = 1, force: bool = False, progress: bo
 def _poolable(pending: list[Job], workers: int) -> list[Job]:
     """The jobs worth a pool: per model size (Job.size), whole groups of `workers`. Runs of one size take about as
     long, so a pool of them keeps every core busy to the end; a lone run of another size would train on one core
-    while the other idles (pareto's one-seed vit-m run at `c9d4ede`: 934 s on one core beside a 191 s vit-xs run;
-    the whole cell, its backbone's pretraining included, took 675 s on both cores at `e53ed77`), so it trains here
-    on every core."""
+    while the other idles (as pareto's one-seed vit-m run once did beside a far shorter vit-xs run, taking longer
+    than the whole cell takes on both cores), so it trains here on every core."""
     by_size: dict = {}
     for job in pending:
         by_size.setdefault(job.size, []).append(job)

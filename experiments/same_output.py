@@ -168,7 +168,7 @@ def certify(result: dict) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
+    ap = argparse.ArgumentParser(prog=common.prog(), description=common.description(__doc__))
     ap.add_argument("--base", required=True, help="the commit to compare HEAD with (e.g. HEAD~1)")
     ap.add_argument("--certify", action="store_true",
                     help=f"on a match, record it in {RECORD.relative_to(common.ROOT)} (commit that file)")

@@ -69,6 +69,18 @@ def _quiet_background_faults() -> None:
     sys.unraisablehook, threading.excepthook = quiet_unraisable, quiet_thread
 
 
+def description(doc: str | None) -> str:
+    """A module docstring's whole first paragraph on one line: the `description=` of its `--help`, whose first
+    sentence a docstring's line break would otherwise cut (`doc.splitlines()[0]`). One line already is itself."""
+    first = re.split(r"\n[ \t]*\n", (doc or "").strip(), maxsplit=1)[0]
+    return " ".join(first.split())
+
+
+# --which of the tools that load a checkpoint (ffjax.store.load)
+WHICH_HELP = ("which weights of a training run to load: best (its lowest validation loss, the default) or latest "
+              "(its last saved step); a calibrated or converted folder holds one set and ignores it")
+
+
 def check_out(parser, folder, flag: str = "--out"):
     """`folder` (absolute) once it is created and writable; otherwise a usage error naming `flag` (exit 2), before
     any work: an output under a file or on a read-only disk fails in a second, not after the run."""

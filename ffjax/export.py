@@ -217,14 +217,14 @@ def load(path) -> ExportedPredictor:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m ffjax.export", description=__doc__.splitlines()[0],
+    p = argparse.ArgumentParser(prog="python -m ffjax.export", description=cli.description(__doc__),
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog="\n".join(__doc__.splitlines()[1:]))
     p.add_argument("--checkpoint", required=True, help="training run, calibrated or converted folder")
     p.add_argument("--out", required=True, help="output file (a .json sidecar is written beside it)")
     p.add_argument("--batch", type=cli.integer(0, "0: a symbolic batch size, any batch"), default=1,
                    help="fixed batch size (0: symbolic); default 1")
-    p.add_argument("--which", default="best", choices=("best", "latest"))
+    p.add_argument("--which", default="best", choices=("best", "latest"), help=cli.WHICH_HELP)
     p.add_argument("--platforms", type=parse_platforms, default=None,
                    help=f"comma-separated lowering targets among {', '.join(PLATFORMS)}, e.g. cpu,cuda (default: "
                    "this machine's)")

@@ -1,6 +1,7 @@
 """`python -m ffjax.train` on the FeelAnyForce release layout (CSV + PNG + .npy) and from release weights."""
 
 import json
+import re
 from pathlib import Path
 
 import _smoke_run
@@ -37,15 +38,16 @@ def test_trains_on_release_csv(release_csvs, tmp_path, capsys):
 
 @pytest.mark.parametrize("entry", ["ffjax.train.__main__:parse_args", "ffjax.train.pretrain.__main__:main"])
 def test_help_names_the_default_preset_and_its_cost(entry, capsys):
-    """Nobody starts a run of minutes without --help saying so."""
+    """Nobody starts a run of minutes without --help saying where its measured time is published; the time itself
+    is not typed in (issue 62: it would go stale)."""
     import importlib
 
     module, fn = entry.split(":")
     with pytest.raises(SystemExit):
         getattr(importlib.import_module(module), fn)(["--help"])
     text = " ".join(capsys.readouterr().out.split())
-    assert "(default: quick). Measured" in text or "(default: quick). One method" in text
-    assert " min" in text
+    assert "(default: quick)" in text and "docs/" in text
+    assert not re.search(r"\d\s?(?:s|min|ms)\b", text), text
 
 
 def test_val_without_csv_is_refused(tmp_path, capsys):

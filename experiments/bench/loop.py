@@ -111,7 +111,7 @@ class _PureStep:
 
     The staged batches are the reference: the step computes different data at every step, as in the loop,
     and only the feeding, logging, validation and saving are left to the loop. One fixed batch stays in the
-    CPU's caches and runs ~1-2% faster than any real training (measured; reported beside, as before)."""
+    CPU's caches and runs a little faster than any real training (measured; reported beside, as before)."""
 
     def __init__(self, cfg: dict, method: str, source, size: int, batch: int, warmup: int, staged: int = 64):
         stats = data.Stats.compute(source, cfg["data"], size)

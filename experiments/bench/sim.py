@@ -259,7 +259,7 @@ def path_convergence(n: int, steps, reference: int, size, sensor: str = "mini-1-
 
 
 # The peak is VmHWM, this process's own high-water mark: getrusage's ru_maxrss also counts the parent's resident
-# size at the fork (Linux keeps the pre-exec high-water mark), which hid the batch under the benchmark's own 2-4 GiB.
+# size at the fork (Linux keeps the pre-exec high-water mark), which hid the batch under the benchmark's own memory.
 _MEMORY = """
 import json, sys
 from experiments.bench import sim as bs

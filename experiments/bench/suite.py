@@ -26,7 +26,8 @@ from experiments.bench import jax_step as bj
 from experiments.common import ROOT, git_commit, write_json, write_text
 
 # What each mode measures: (preset, method, input size, train batch, infer batches, overrides, vit preset).
-# "smoke" is for the tests (seconds, numbers meaningless); "quick" ~minutes; "full" < 30 min.
+# "smoke" is for the tests (its numbers check the plumbing); "quick" the short run reproduce publishes; "full" the
+# longest (measured times: docs/results/quick/reproduce.json, docs/benchmarks.md).
 S14 = {"preset": "paper", "vit": "s14", "overrides": {"model.decoder.kind": "tokens"}}
 PLANS = {
     "smoke": {
@@ -498,17 +499,19 @@ def ratios(res: dict) -> dict:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m experiments.bench", description=__doc__.split("\n")[0])
-    from experiments import common
-
+    ap = argparse.ArgumentParser(prog="python -m experiments.bench", description=common.description(__doc__))
     measured = common.measured_cost("bench", "quick")
-    ap.add_argument("--quick", action="store_true", help="the ~minutes version (fewer rounds, smaller sweeps)"
+    ap.add_argument("--quick", action="store_true", help="the shorter version (fewer rounds, smaller sweeps)"
                     + (f"; {measured}" if measured else ""))
-    ap.add_argument("--smoke", action="store_true", help="tiny sizes, seconds (tests); numbers mean nothing")
+    ap.add_argument("--smoke", action="store_true",
+                    help="tiny sizes, for the tests: its numbers check the plumbing and mean nothing")
     ap.add_argument("--out", default=None, help="results folder (default results/bench-<mode>)")
     ap.add_argument("--torch-python", default=None,
                     help="python with torch for the PyTorch side when torch is not importable here")
-    ap.add_argument("--skip", action="append", default=[], choices=("profile", "data", "scaling", "dp"))
+    ap.add_argument("--skip", action="append", default=[], choices=("profile", "data", "scaling", "dp"),
+                    help="leave a part out (repeatable): profile, the train step's per-op profile; data, the "
+                         "simulator, input pipeline and training loop rates; scaling, the step as batch, image and "
+                         "model grow; dp, data parallel over 8 virtual CPU devices")
     ap.add_argument("--only", choices=tuple(ONLY), default=None,
                     help="one part alone, in results/bench-<part>-<mode>: "
                          + "; ".join(f"{k}: {v}" for k, v in ONLY.items()))

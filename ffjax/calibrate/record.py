@@ -183,7 +183,7 @@ def serial_reader(port: str, baud: int = 9600, query: str | None = None, timeout
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m ffjax.calibrate.record", description=__doc__.splitlines()[0],
+    p = argparse.ArgumentParser(prog="python -m ffjax.calibrate.record", description=cli.description(__doc__),
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog="\n".join(__doc__.splitlines()[1:]))
     p.add_argument("--camera", type=cli.integer(0), required=True,
@@ -196,7 +196,7 @@ def main(argv=None) -> int:
     p.add_argument("--resize", type=cli.frame_size, default=None,
                    help="HxW: resize camera frames (match your checkpoint)")
     p.add_argument("--serial", default=None, help="serial port of a force gauge (needs pyserial)")
-    p.add_argument("--baud", type=cli.integer(1), default=9600)
+    p.add_argument("--baud", type=cli.integer(1), default=9600, help="serial line speed of the gauge (default 9600)")
     p.add_argument("--serial-query", default=None, help="text sent to the gauge before each reading")
     a = p.parse_args(argv)
     cli.check_out(p, a.out)  # before the camera: a typo in --out costs no warmup

@@ -147,21 +147,25 @@ def format_report(r: dict) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m ffjax.calibrate", description=__doc__.splitlines()[0],
+    p = argparse.ArgumentParser(prog="python -m ffjax.calibrate", description=cli.description(__doc__),
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog="\n".join(__doc__.splitlines()[1:]))
     p.add_argument("--checkpoint", required=True, help="training run, calibrated or converted folder")
     p.add_argument("--data", required=True, help="release-layout CSV (or a folder holding data.csv / shards)")
     p.add_argument("--out", required=True, help="new folder for the calibrated checkpoint")
-    p.add_argument("--layers", default="last", choices=core.LAYERS)
+    p.add_argument("--layers", default="last", choices=core.LAYERS,
+                   help="what calibration tunes: last (the regressor's output layer and its last norm, the default) "
+                        "or regressor (the whole regressor); the backbone stays fixed")
     p.add_argument("--steps", type=cli.integer(1), default=None,
                    help="optimizer steps (default: cfg calibrate.steps)")
     p.add_argument("--lr", type=cli.number(0), default=None, help="Adam learning rate (default: cfg calibrate.lr)")
     p.add_argument("--holdout", type=cli.fraction, default=None, help="held-out fraction (default: cfg, 0.2)")
-    p.add_argument("--batch-size", type=cli.integer(1), default=None)
+    p.add_argument("--batch-size", type=cli.integer(1), default=None,
+                   help="samples per optimizer step (default: cfg calibrate.batch_size)")
     p.add_argument("--background", default=None, help="no-contact frame, if not background.png beside the CSV")
-    p.add_argument("--seed", type=cli.integer(0), default=0)
-    p.add_argument("--which", default="best", choices=("best", "latest"))
+    p.add_argument("--seed", type=cli.integer(0), default=0,
+                   help="seed of the held-out split and of the batch order (default: 0)")
+    p.add_argument("--which", default="best", choices=("best", "latest"), help=cli.WHICH_HELP)
     p.add_argument("--force", "--overwrite", dest="force", action="store_true",
                    help="replace an existing --out (it may never be inside --checkpoint or --data)")
     return p

@@ -1,4 +1,6 @@
-"""python -m ffjax.convert {dinov2,resnet18,feelanyforce} IN --out DIR [--heads N] [--depth-channel C]
+"""Convert PyTorch weights (a DINOv2 ViT, a torchvision ResNet-18 or the FeelAnyForce release) to a Flax folder.
+
+    python -m ffjax.convert {dinov2,resnet18,feelanyforce} IN --out DIR [--heads N] [--depth-channel C]
 
 Writes DIR/variables.msgpack and DIR/convert.json (see ffjax.store.converted), whole: a kill leaves the old folder
 or none; an existing DIR is replaced only with --force, and DIR may not hold IN. Prints a summary.
@@ -24,8 +26,9 @@ def _count(tree) -> int:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m ffjax.convert", description=__doc__.splitlines()[0])
-    p.add_argument("kind", choices=("dinov2", "resnet18", "feelanyforce"))
+    p = argparse.ArgumentParser(prog="python -m ffjax.convert", description=cli.description(__doc__))
+    p.add_argument("kind", choices=("dinov2", "resnet18", "feelanyforce"),
+                   help="what IN holds: a DINOv2 ViT, a torchvision ResNet-18 or the FeelAnyForce release checkpoint")
     p.add_argument("input", help=".pth / .pth.tar / .pt (torch.save zip) or .safetensors")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--heads", type=int, default=None, help="ViT attention heads (default: from name, dim//64)")

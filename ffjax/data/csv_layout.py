@@ -58,7 +58,7 @@ def write_csv(source, out, progress: bool = True) -> Path:
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m ffjax.data.csv_layout", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m ffjax.data.csv_layout", description=cli.description(__doc__))
     p.add_argument("--split", required=True, help="a shard directory (or any split open_split reads)")
     p.add_argument("--out", required=True,
                    help="output folder (data.csv, tactile/, depth/, background.png)")

@@ -2,8 +2,8 @@
 
 `grain.MapDataset.shuffle(seed)` places record k of epoch e at `index_shuffle(k, n - 1, seed + e, rounds=4)`:
 a 4-round Simon block cipher (round keys from C++'s std::seed_seq) with cycle walking. grain evaluates it
-one element at a time from Python, ~10 us each: 0.6 ms of CPU for a batch of 64, taken from the cores the
-train step runs on (issue 14). The same permutation vectorized costs ~1 ms per epoch of 6,000. The tests
+one element at a time from Python, taking CPU for every batch from the cores the train step runs on (issue 14);
+the same permutation vectorized costs a small part of that per epoch (measured: docs/benchmarks.md). The tests
 compare it with grain's own function for many sizes and seeds, so the training order stays grain's exactly.
 """
 

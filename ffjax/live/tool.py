@@ -55,7 +55,7 @@ def _fmt(v) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m ffjax.live", description=__doc__.splitlines()[0],
+    p = argparse.ArgumentParser(prog="python -m ffjax.live", description=cli.description(__doc__),
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog="\n".join(__doc__.splitlines()[1:]))
     p.add_argument("--checkpoint", required=True, help="training run, calibrated or converted folder")
@@ -80,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stop after this many predictions (default: when the source ends)")
     p.add_argument("--print-every", type=cli.integer(0, "0: never"), default=1,
                    help="print every Nth frame (0: never)")
-    p.add_argument("--which", default="best", choices=("best", "latest"))
+    p.add_argument("--which", default="best", choices=("best", "latest"), help=cli.WHICH_HELP)
     p.add_argument("--refresh-background", default="auto", choices=("auto", "on", "off"),
                    help="follow a drifting light on frames without contact (auto: on for --camera)")
     p.add_argument("--refresh-threshold", type=cli.number(0), default=3.0,

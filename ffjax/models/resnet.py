@@ -26,9 +26,9 @@ def _conv_op(lhs, rhs, window_strides, padding, lhs_dilation=None, rhs_dilation=
              feature_group_count=1, precision=None):
     """lax.conv_general_dilated (NHWC, HWIO), computed as one matrix product of the windows (im2col) where the
     window is larger than the map it makes: the same sum. XLA's CPU convolution leaves its fast path there, in
-    the forward and both gradients: at the quick preset's 64 px, the last stage's 2x2 maps took 63 of the
-    train step's 153 ms (75 MFLOP convolutions at ~7 GFLOP/s); through the product the step takes 79 ms
-    (docs/benchmarks.md). Bigger maps (every stage at paper scale) keep the library's convolution."""
+    the forward and both gradients: at the quick preset's 64 px the last stage's 2x2 maps took most of the train
+    step, and through the product the step takes about half the time (measured: docs/benchmarks.md). Bigger maps
+    (every stage at paper scale) keep the library's convolution."""
 
     def library():
         return lax.conv_general_dilated(lhs, rhs, window_strides, padding, lhs_dilation, rhs_dilation,

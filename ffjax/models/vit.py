@@ -93,7 +93,7 @@ class PatchEmbed(nn.Module):
 
 
 class Attention(nn.Module):
-    """Fused-qkv einsum attention (3-5x faster forward than nn.MultiHeadDotProductAttention on CPU)."""
+    """Fused-qkv einsum attention (a faster forward than nn.MultiHeadDotProductAttention on CPU)."""
 
     dim: int
     heads: int

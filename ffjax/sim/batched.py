@@ -275,8 +275,8 @@ def _joined(parts, n: int, names) -> dict:
 def _coupled_apply(kern, q):
     """(ux, uy, depth) (3, H, W) under the traction and pressure q = (qx, qy, p) (3, H, W), with the kernels of
     `Layer.coupled` (cxx, cxy, cyy, cnn real; the couplings zq, zp imaginary, given by their imaginary parts).
-    The products are written on the transforms' real and imaginary parts (a third faster than complex
-    arithmetic on a CPU)."""
+    The products are written on the transforms' real and imaginary parts (faster than complex arithmetic on a
+    CPU)."""
     cxx, cxy, cyy, cnn, zqx, zqy, zpx, zpy = kern
     f = jnp.fft.rfft2(q)
     fr, fi = jnp.real(f), jnp.imag(f)

@@ -70,8 +70,8 @@ _SENSORS_BEFORE = tuple(f"mini-{u}-gel{g}" for u in (1, 2, 3) for g in (1, 2, 3)
 CALIB_SHAPE = "sphere_big"
 SENSOR_KEYS = SENSOR_NAMES  # every sensor gets a Table II split and a calibration split
 MINI_KEYS = tuple(k for k in SENSOR_NAMES if get_sensor(k).name in MINI_NAMES)
-# Shards are stored uncompressed: camera noise and the smooth depth tails left deflate at ~0.9 of the
-# size for 5x the write time, and stored members load faster.
+# Shards are stored uncompressed: camera noise and the smooth depth tails deflate little, for several times
+# the write time, and stored members load faster.
 COMPRESS = False
 _OURS = ("config.json", "manifest.json", "train", "val", "unseen", "sensor", "calib")
 
@@ -345,7 +345,7 @@ def _prepare(out: Path, g: dict, force: bool) -> None:
     _write_text(cfg_file, json.dumps(g, indent=1))
 
 
-WORKERS_FROM = 2000  # presses: starting processes costs ~2 s, not worth it for fewer
+WORKERS_FROM = 2000  # presses: starting worker processes costs more than it saves on fewer
 MAX_WORKERS = 8
 
 

@@ -243,7 +243,7 @@ def solve_stick(contact: np.ndarray, layer: Layer, tol: float = 1e-4, max_iter: 
         raise ValueError(f"contact {contact.shape} does not match the layer grid {layer.shape}")
     if not contact.any():
         raise ValueError("no contact: nothing holds the surface")
-    on = contact.astype(np.float32)  # float32 throughout: 1e-4 is far above its round-off, and FFTs run 2x faster
+    on = contact.astype(np.float32)  # float32 throughout: 1e-4 is far above its round-off, and FFTs run faster
     n_on = float(on.sum())
     hold, surface = layer.coupled(depth)
 

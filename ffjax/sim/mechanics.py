@@ -214,7 +214,7 @@ def _reference_normal(hb: np.ndarray, fz: float, layer, thickness: float):
 
 
 def smooth(x: np.ndarray, sigma_px: float) -> np.ndarray:
-    """Gaussian blur; wide kernels run on a downsampled copy (same result to the eye, ~10x faster)."""
+    """Gaussian blur; wide kernels run on a downsampled copy (same result to the eye, and much faster)."""
     if sigma_px < 0.3:
         return x
     H, W = x.shape[:2]
@@ -337,10 +337,9 @@ def _approach_at_ends(f_mid, d_mid, fz: float, d_end: float, steps: int) -> np.n
 
 
 # The oblique press's path, the default of every press and of the config (data.path_steps, data.path_quadrature):
-# chosen on bench --only sim's "The oblique path's steps" (d56bbdb, +-7 deg tilts): 2 power-law steps put its shear a
-# median 1.1% (max 5.9%) off the path converged, 0.54x the time a press of the 4 midpoint steps before (3.9%, max
-# 9.4%); its depth a median 6.2 um off (max 70 um; 41 um at 4 steps): only more steps shrink the depth's path error.
-# docs/benchmarks.md has the table at today's +-15 deg.
+# chosen on bench --only sim's "The oblique path's steps": 2 power-law steps put its shear closer to the path
+# converged than the 4 midpoint steps before did, in about half their time; only more steps shrink the depth's path
+# error. docs/benchmarks.md has the measured table at today's +-15 deg.
 PATH_STEPS = 2
 QUADRATURES = ("midpoint", "power")
 PATH_QUADRATURE = "power"  # how a step's stiffness stands for it (`oblique_batch`)

@@ -1,9 +1,10 @@
 """The run state as one flat buffer per dtype, for the resume checkpoints.
 
-orbax writes every tensor as its own entry at ~1 ms of CPU each: the quick run state's ~200 tensors cost
-~0.17 s of CPU per save, on the cores the train step shares (issue 14). Packed, the same state is three
-buffers (float32, int32, uint32) at ~0.02 s. The layout (each tensor's path, dtype and shape, in tree
-order) is saved beside the buffers, so the parameters can be read back without the optimizer's tree.
+orbax writes every tensor as its own entry, each at a cost of CPU: the quick run state's ~200 tensors cost
+CPU at every save, on the cores the train step shares (issue 14). Packed, the same state is three buffers
+(float32, int32, uint32), at a fraction of that (measured: docs/benchmarks.md). The layout (each tensor's
+path, dtype and shape, in tree order) is saved beside the buffers, so the parameters can be read back without
+the optimizer's tree.
 The best checkpoint, the one users load, stays a plain tensor tree.
 """
 

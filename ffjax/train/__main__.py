@@ -1,6 +1,7 @@
-"""`python -m ffjax.train --preset quick --method dino_rd [--data DIR | --data TRAIN.csv --val VAL.csv]
-[--out RUN] [--resume[=auto]] [--pretrained DIR | --init KIND:PATH] [--set key.path=value ...]`: train one method,
-report its validation force error.
+"""Train one method on a preset's simulated data or on release-layout CSVs, and report its validation force error.
+
+    python -m ffjax.train --preset quick --method dino_rd [--data DIR | --data TRAIN.csv --val VAL.csv]
+        [--out RUN] [--resume[=auto]] [--pretrained DIR | --init KIND:PATH] [--set key.path=value ...]
 
 Without --data the preset's simulated dataset is generated (or reused) in its cache folder,
 ffjax.sim.dataset.default_root (the checkout's data/<preset>, or $FFJAX_DATA/<preset>). --data may
@@ -25,13 +26,12 @@ from ffjax.train.pretrain import load_backbone
 
 
 def parse_args(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m ffjax.train", description=__doc__.split("\n\n")[0])
-    # measured costs (2-core CPU: the quick ablation at 42ea49b, the full one at 942ebfd), so nobody starts a
-    # long run unknowingly
+    ap = argparse.ArgumentParser(prog="python -m ffjax.train", description=cli.description(__doc__))
     ap.add_argument("--preset", default="quick", choices=configs.PRESETS,
-                    help="size of data, model and training (default: quick). One method on a 2-core CPU: smoke: "
-                    "seconds, numbers meaningless; quick: 1-5 min (DINO RD 193 s, ResNet RD 272 s), plus 4-6 "
-                    "min to simulate data/quick on first use; full: 1.5-5 min per seed")
+                    help="size of data, model and training (default: quick): smoke for the tests (its numbers "
+                    "check the plumbing, nothing more), quick and full for a CPU, gpu and paper for a GPU; without "
+                    "--data the preset's dataset is simulated first on first use. The measured times of published "
+                    "runs are in docs/experiments.md and docs/benchmarks.md")
     ap.add_argument("--method", default="dino_rd", choices=registry.names(), help="registry name (default: dino_rd)")
     ap.add_argument("--data", help="dataset root holding train/ and val/, or a release-layout CSV "
                     "(default: the preset's simulated dataset in the checkout's data/<preset>, or "

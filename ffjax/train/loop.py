@@ -271,7 +271,7 @@ class _Run:
                     self.state = callback(done, self.state) or self.state
                 epoch_end = done % self.steps_per_epoch == 0
                 # by steps, not at every epoch end: on a small dataset an epoch is seconds, and each save costs
-                # CPU the step shares (~0.03 s packed at quick on 2 cores); the last step always saves
+                # CPU the step shares (measured: docs/benchmarks.md); the last step always saves
                 save = done % self.ckpt_every == 0 or done == self.total or done == max_steps
                 if save or epoch_end:
                     self.flush()  # every step up to a checkpoint is checked finite; epoch means need every step

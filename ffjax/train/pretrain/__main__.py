@@ -21,17 +21,17 @@ from ffjax.train.pretrain.report import format_report, probe_report
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m ffjax.train.pretrain", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m ffjax.train.pretrain", description=cli.description(__doc__))
     ap.add_argument("--preset", default="quick", choices=configs.PRESETS,
-                    help="corpus and schedule size (default: quick). Measured on a 2-core CPU: quick and full: "
-                    "1-1.5 min for the ViT, 1.5-3.5 min for the ResNet (cached after, per backbone)")
+                    help="corpus and schedule size (default: quick); each backbone is cached after its first run "
+                    "(measured times: docs/training.md)")
     ap.add_argument("--backbone", default="all", choices=(*KINDS, "all"), help="which to pretrain (default: all)")
     ap.add_argument("--out", default=None, help="output folder (default data/<preset>/pretrained)")
     ap.add_argument("--force", action="store_true", help="pretrain again even if a matching cache exists")
     ap.add_argument("--probe", action="store_true", help="also run the linear probe (random vs pretrained)")
     ap.add_argument("--data", default=None, help="labelled dataset for the probe (default data/<preset>)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
-    ap.add_argument("--quiet", action="store_true")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
     cfg = configs.from_cli(ap, args.preset, args.set)
     out = Path(args.out or dataset.default_root(args.preset) / "pretrained")

@@ -68,7 +68,7 @@ def load_or_build(cfg: dict, cache_dir: str | os.PathLike | None = None, progres
 
 def build(settings: dict, progress: bool = False, workers: int | None = None):
     """Generate the corpus; meta records each frame's kind and (for sim frames) shape and sensor. The sim
-    frames (~0.05 s each: the gel's contact solve, one press at a time) are spread over `workers` processes
+    frames (the slow part: the gel's contact solve, one press at a time) are spread over `workers` processes
     (default: dataset.default_workers: the CPU count, up to 8, when there are enough of them to pay for
     starting the processes; one on a GPU); every frame has its
     own generator, so the result does not depend on the split."""
