@@ -11,7 +11,9 @@ WORK/ablation), so nothing is trained twice, and every stage is cached: a killed
 where it stopped; WORK/reproduce.json records each experiment's wall time as it finishes, so a kill loses none
 that finished. Then each result folder, without its trained runs, is copied to PUBLISH/<name> (default:
 docs/results/<preset>; --no-publish leaves docs alone), with reproduce.json (commit, preset, each experiment's
-wall time and the load) and the index page (experiments.status --index).
+wall time and the load) and the index page (experiments.status --index); publishing to docs/results/quick also
+executes the notebooks on it (experiments.notebooks), then `python -m experiments.doc_tables` brings README and
+docs to the new numbers.
 """
 
 from __future__ import annotations
@@ -85,8 +87,9 @@ def merged_record(path: Path, record: dict) -> dict:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
-    ap.add_argument("--preset", default="quick", choices=configs.PRESETS)
+    ap = argparse.ArgumentParser(prog=common.prog(), description=common.description(__doc__))
+    ap.add_argument("--preset", default="quick", choices=configs.PRESETS,
+                    help="the preset whose published results are brought up to date (default: quick)")
     ap.add_argument("--only", nargs="+", default=None, metavar="NAME",
                     help=f"a subset of the pipeline ({', '.join(e.name for e in catalog.pipeline())}); without it, "
                          f"all but {', '.join(e.name for e in catalog.pipeline() if e.on_request) or 'none'}")
@@ -154,6 +157,12 @@ def main(argv=None) -> dict:
         rows = status.check_all(dest)
         common.write_text(dest / "README.md", status.index(rows, dest, merged))
         print(f"published {len(chosen)} results to {dest} (index: {dest / 'README.md'})", file=sys.stderr)
+        if dest.resolve() == (common.ROOT / "docs" / "results" / "quick").resolve():
+            from experiments import notebooks  # they show this tree: their outputs are results of it too
+
+            for book in notebooks.NOTEBOOKS:
+                print(f"[reproduce] executing {book.path}", file=sys.stderr, flush=True)
+                notebooks.execute(book)
     return record
 
 

@@ -11,8 +11,10 @@ sources its numbers and its figures come from. At HEAD a result is
   (`python -m experiments.replot FOLDER` redraws it and records the commit it drew with);
 - stale: a source of its numbers changed (the files are listed), it ran on uncommitted code ("-dirty"), its
   commit is not in this history, or a result whose trained runs it reads is stale.
---check exits 1 when any is not current; --index writes ROOT/README.md, the index of every result (what it
-answers, the command, commit, seeds, wall time, state). ROOT defaults to docs/results.
+The notebooks (experiments.notebooks) are listed after them, current when their outputs were made from today's
+cells, code and published results. --check exits 1 when any result or notebook is not current; --index writes
+ROOT/README.md, the index of every result (what it answers, the command, commit, seeds, wall time, state). ROOT
+defaults to docs/results (the notebooks show that tree: they are listed for it alone).
 """
 
 from __future__ import annotations
@@ -295,7 +297,7 @@ def index(rows, root, record: dict | None = None) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog=common.prog(), description=__doc__.strip().splitlines()[0])
+    ap = argparse.ArgumentParser(prog=common.prog(), description=common.description(__doc__))
     ap.add_argument("root", nargs="?", default=str(common.ROOT / "docs" / "results"),
                     help="a results tree (default: docs/results)")
     ap.add_argument("--stale", action="store_true", help="list only the results that are not current")
@@ -310,10 +312,19 @@ def main(argv=None) -> int:
     print(table(shown, root))
     counts = {s: sum(r.state == s for r in rows) for s in ("current", "replot", "stale")}
     print(f"\n{len(rows)} results: " + ", ".join(f"{n} {s}" for s, n in counts.items()))
+    from experiments import notebooks
+
+    published = root.resolve() == (common.ROOT / "docs" / "results").resolve()
+    books = {n.path: notebooks.state(n) for n in notebooks.NOTEBOOKS} if published else {}
+    if books:  # the notebooks are results too: listed and checked
+        print("\n" + common.md_table(["notebook", "state", "why"],
+                                     [[p, st, _why(Result(Path(p), None, {}, st, why)) or "-"]
+                                      for p, (st, why) in books.items()]))
     if args.index:
         common.write_text(root / "README.md", index(rows, root, common.read_json(root / "reproduce.json")))
         print(f"wrote {root / 'README.md'}")
-    return 1 if args.check and counts["current"] < len(rows) else 0
+    behind = counts["current"] < len(rows) or any(st != "current" for st, _ in books.values())
+    return 1 if args.check and behind else 0
 
 
 if __name__ == "__main__":
