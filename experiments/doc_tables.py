@@ -12,7 +12,8 @@ Two kinds of block, each between an opening marker and its closing one:
   table of a result's FILE.md (a path from the repository root; after the first line holding TEXT), as it is.
 - `<!-- result-text: FILE.json KEY.PATH [TEMPLATE] -->` ... `<!-- /result-text -->` (any document, inline or on
   its own lines): one value of a results file: a sentence as written there (a finding), a number through TEMPLATE
-  (a str.format template such as `{:.1f}%`; without one, as JSON writes it). KEY.PATH walks dicts by key and lists
+  (a str.format template such as `{:.1f}%`; without one, as JSON writes it); a value of several lines (a list)
+  starts on the line after the marker. KEY.PATH walks dicts by key and lists
   by index (a key that itself holds dots, such as a share "0.5", is found too); KEY.PATH/N divides a number by N
   (`wall_s/60`: minutes).
 Outside generated blocks a measured number may not be typed (experiments.doc_numbers): `--check` fails on one.
@@ -155,6 +156,8 @@ def _text(match: re.Match) -> str:
         body = value
     else:
         body = json.dumps(value)
+    if "\n" in body:  # a list or paragraphs: on lines of their own, so Markdown renders them (not the marker's line)
+        body = "\n" + body.strip("\n") + "\n"
     return match.group(1) + body + match.group(4)
 
 

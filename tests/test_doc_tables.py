@@ -87,3 +87,12 @@ def test_numbers_in_code_blocks_and_allowed_constants_are_not_measurements():
 def test_no_measured_number_is_typed_by_hand(doc):
     hits = doc_numbers.hand_typed(doc.read_text())
     assert not hits, f"{doc.name}: quote these through a generated block (experiments.doc_tables): {hits[:10]}"
+
+
+def test_a_text_block_of_several_lines_starts_on_its_own_line(tmp_path, monkeypatch):
+    monkeypatch.setattr(common, "ROOT", tmp_path)
+    (tmp_path / "r.json").write_text('{"summary": "- a\\n- b"}')
+    doc = "Summary: <!-- result-text: r.json summary -->old<!-- /result-text -->"
+    assert doc_tables.regenerate(doc) == ("Summary: <!-- result-text: r.json summary -->\n- a\n- b\n"
+                                          "<!-- /result-text -->")
+    assert doc_tables.regenerate(doc_tables.regenerate(doc)) == doc_tables.regenerate(doc)
