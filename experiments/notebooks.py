@@ -2,7 +2,7 @@
 checked like any other result (a stale notebook is a stale result).
 
     python -m experiments.notebooks            # execute every notebook in place (outputs and provenance saved)
-    python -m experiments.notebooks --check    # exit 1 when a notebook's outputs are not current
+    python -m experiments.status               # lists them with the results: current or stale, and why
 
 `python -m experiments.reproduce` runs this after publishing to docs/results/quick. An executed notebook records in
 its metadata ("ffjax") the commit it ran at, the digest of its code cells and the digest of every results file it
@@ -70,11 +70,10 @@ def execute(notebook: Notebook, timeout: int = 900) -> Path:
     return path
 
 
-def state(notebook: Notebook) -> tuple[str, list]:
-    """("current" | "stale", why) of a notebook's committed outputs at HEAD."""
+def state(notebook: Notebook, changed_since) -> tuple[str, list]:
+    """("current" | "stale", why) of a notebook's committed outputs at HEAD. changed_since: experiments.status's
+    (the files under paths whose code changed since a commit, None for a commit not in this history)."""
     import nbformat
-
-    from experiments import status
 
     nb = nbformat.read(common.ROOT / notebook.path, as_version=4)
     meta = nb.metadata.get("ffjax")
@@ -87,7 +86,7 @@ def state(notebook: Notebook) -> tuple[str, list]:
         return "stale", ["its cells changed since they ran"]
     if meta.get("shows_sha256") != shown(notebook):
         return "stale", ["the results it shows changed since it ran"]
-    changed = status.changed_since(commit, notebook.code, certificates=True)
+    changed = changed_since(commit, notebook.code, certificates=True)
     if changed is None:
         return "stale", [f"commit {commit[:7]} is not in this history"]
     return ("stale", changed) if changed else ("current", [])
@@ -97,17 +96,10 @@ def main(argv=None) -> int:
     from ffjax import cli
 
     ap = argparse.ArgumentParser(prog=common.prog(), description=cli.description(__doc__))
-    ap.add_argument("--check", action="store_true", help="Only say which notebooks are current; exit 1 when one "
-                                                         "is not.")
     ap.add_argument("--only", nargs="+", metavar="NOTEBOOK", choices=[Path(n.path).stem for n in NOTEBOOKS],
                     help="Execute only these notebooks (by name: results, simulator).")
     args = ap.parse_args(argv)
     chosen = [n for n in NOTEBOOKS if not args.only or Path(n.path).stem in args.only]
-    if args.check:
-        states = {n.path: state(n) for n in chosen}
-        for path, (s, why) in states.items():
-            print(f"{path}: {s}" + (f" ({', '.join(why[:4])})" if why else ""))
-        return int(any(s != "current" for s, _ in states.values()))
     for n in chosen:
         print(f"executing {n.path}", file=sys.stderr, flush=True)
         execute(n)

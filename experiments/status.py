@@ -315,7 +315,7 @@ def main(argv=None) -> int:
     from experiments import notebooks
 
     published = root.resolve() == (common.ROOT / "docs" / "results").resolve()
-    books = {n.path: notebooks.state(n) for n in notebooks.NOTEBOOKS} if published else {}
+    books = {n.path: notebooks.state(n, changed_since) for n in notebooks.NOTEBOOKS} if published else {}
     if books:  # the notebooks are results too: listed and checked
         print("\n" + common.md_table(["notebook", "state", "why"],
                                      [[p, st, _why(Result(Path(p), None, {}, st, why)) or "-"]

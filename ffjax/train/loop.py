@@ -170,8 +170,11 @@ def _resumed_stats(ckpt, run_dir: Path, cfg: dict, spec):
         raise CheckpointError(f"{run_dir} was trained with method {saved.spec.name!r}, not {spec.name!r}")
     stats = saved.stats
     # compared after the output affine is filled in, as model.json records it; the saved config read as it was
-    # meant (a key it lacks holds the value the code used then)
-    changed = _diff(json.loads(json.dumps(saved.cfg)), json.loads(json.dumps(with_output_affine(cfg, stats))))
+    # meant (a key it lacks holds the value the code used then), less the report section: how results are worded
+    # changes nothing the run trains
+    before, now = (json.loads(json.dumps({k: v for k, v in c.items() if k != "report"}))
+                   for c in (saved.cfg, with_output_affine(cfg, stats)))
+    changed = _diff(before, now)
     if dataclasses.is_dataclass(spec) and saved.spec != spec:  # e.g. another loss weight under the same name
         changed += _diff(dataclasses.asdict(saved.spec), dataclasses.asdict(spec), "method.")
     if changed:  # allowed (e.g. more epochs), but the result then differs from an uninterrupted run
