@@ -19,7 +19,7 @@ ALLOWED = {
     "15 N": "the top of the training Fz range (config data.fz_max)",
     "25 fps": "the GelSight Mini's frame rate (sensor specification)",
     "40 ms": "the GelSight Mini's frame period at 25 fps (sensor specification)",
-    "30 fps": "the DIGIT's frame rate (sensor specification)",
+    "60 fps": "the DIGIT's frame rate at QVGA, the benchmark's DIGIT_FPS (sensor specification)",
     "100%": "a whole, not a measurement (e.g. 100% of a dataset)",
     "50%": "a share set by a config (a split, a probability), not a measurement",
 }

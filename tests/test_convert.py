@@ -18,7 +18,7 @@ from ffjax.models import vit
 from ffjax.store import converted
 
 FIX = Path(__file__).parent / "fixtures"
-TOL = 1e-5  # float32; measured max abs differences are <= 2e-6 (see "Parity" in docs/models.md)
+TOL = 1e-5  # float32 rounding: the bound docs/models.md ("Parity") states
 
 
 def _ref(name):
