@@ -46,6 +46,29 @@ def test_the_estimator_separates_pattern_noise_and_drift():
     assert np.allclose(r["drift_last"], drift[-1], atol=0.1)
 
 
+def test_the_drift_is_split_into_gain_offset_and_a_smooth_field():
+    """Synthetic frames whose lighting drifts by a known gain on R, an offset on G and a smooth tilt across the pad
+    on B, with noise: each read back per minute, and B's tilt left to the field."""
+    rng = np.random.default_rng(2)
+    H, W, N = 96, 128, 20
+    yy, xx = np.mgrid[0:H, 0:W] / np.float32(W)
+    level = np.stack([60 + 60 * xx, 100 + 40 * yy, 100 + 20 * yy], -1).astype(np.float32)  # vignette-like
+    times = np.arange(N) * 12.0  # s: 3.8 minutes
+    tilt = (xx - xx.mean()) * 4.0  # counts at the end: a field the gain and the offset cannot fit
+    frames = []
+    for t in times:
+        u = t / times[-1]
+        drifted = level * np.array([1 - 0.04 * u, 1, 1]) + np.stack([0 * xx, -1.0 * u + 0 * xx, tilt * u], -1)
+        frames.append(np.clip(np.round(drifted + rng.standard_normal((H, W, 3))), 0, 255).astype(np.uint8))
+    r = rest_recording.drift_makeup(np.stack(frames), times)
+    minutes = times[-1] / 60  # the drift is linear in time: its rate is the whole drift over the whole span
+    assert np.isclose(r["drift_gain_pct_per_min"][0], -4 / minutes, rtol=0.1)
+    assert np.isclose(r["drift_offset_per_min"][1], -1 / minutes, rtol=0.1)
+    assert abs(r["drift_gain_pct_per_min"][1]) < 0.1 and abs(r["drift_offset_per_min"][0]) < 0.3
+    assert r["drift_field_rms_per_min"][2] > 5 * max(r["drift_field_rms_per_min"][:2])
+    assert r["drift_level_fit_share"][0] > 0.9 and r["drift_level_fit_share"][2] < 0.5
+
+
 def test_recording_errors_name_the_file(tmp_path):
     with pytest.raises(ValueError, match="no background.png"):
         rest_recording.load_recording(tmp_path)

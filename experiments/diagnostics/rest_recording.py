@@ -13,7 +13,12 @@ release's 240x320): their background frame and --sim-frames frames, each with it
   so vignette and lighting are left out), from the cross-covariance between different frames (their noise
   is independent, so it drops out): its rms, in counts and as % of the level, and its gradient's rms (%/px);
 - drift: the frames' mean minus the background's, over time (first, most negative, most positive, last), and
-  its rate (counts/min, a straight line fitted over the recording).
+  its rate (counts/min, a straight line fitted over the recording);
+- the drift's make-up, what a drift augmentation must reproduce: the last frames less the first (a few each,
+  blurred by DRIFT_SMOOTH of the frame's width, so noise and the fine pattern drop out), fitted over the pad as
+  offset + gain x the first frames' level; per minute of the recording: the gain (% of the level), the offset
+  (counts), the rms of what the fit leaves (a smooth field across the pad, counts) and the share of the drift
+  map's variance the gain and offset explain.
 Frames at rest cannot tell a pattern that moves with the gel (pigment) from one that stays (the camera's pixel
 gains, dust on the optics): the fixed pattern is their sum, an upper bound for either.
 Writes OUT/results.json, rest_recording.md and rest_recording.png.
@@ -34,6 +39,7 @@ from ffjax.sim.optics import FINE_PX as HIGHPASS_PX  # the simulator's patterns 
 
 CHANNELS = ("R", "G", "B")
 SIM_SENSORS = ("mini-1-gel1", "mini-1-gel2", "mini-1-gel3", "digit")
+DRIFT_SMOOTH = 1 / 40  # the drift map's blur, a fraction of the frame's width: far above the fine pattern's scale
 
 
 def _read_png(path: Path) -> np.ndarray:
@@ -127,7 +133,33 @@ def measure(frames: np.ndarray, background: np.ndarray, times: np.ndarray) -> di
            "drift_first": drift[0].tolist(), "drift_min": drift.min(0).tolist(), "drift_max": drift.max(0).tolist(),
            "drift_last": drift[-1].tolist(), "drift_per_min": rate,
            "drift_curve": {"t_s": np.asarray(times, float).round(3).tolist(), "counts": drift.round(4).tolist()}}
-    return out
+    return {**out, **drift_makeup(frames, times)}
+
+
+def drift_makeup(frames: np.ndarray, times: np.ndarray) -> dict:
+    """The drift between the first and the last few frames (N, H, W, 3) split per channel into a gain, an offset
+    and a smooth field left over, each per minute (see the module's docstring)."""
+    k = max(1, min(5, len(frames) // 4))
+    sigma = DRIFT_SMOOTH * frames.shape[2]
+
+    def smooth(a):
+        return cv2.GaussianBlur(a.astype(np.float32), (0, 0), sigma, borderType=cv2.BORDER_REPLICATE)
+
+    first, last = smooth(frames[:k].mean(0)), smooth(frames[-k:].mean(0))
+    minutes = max(float(np.mean(times[-k:]) - np.mean(times[:k])) / 60.0, 1e-9)
+    gain, offset, field, explained = [], [], [], []
+    for c in range(3):
+        level, change = first[..., c].ravel().astype(np.float64), (last - first)[..., c].ravel().astype(np.float64)
+        spread = level.var()  # a flat channel cannot tell a gain from an offset: all of it is offset then
+        g = float(np.mean((level - level.mean()) * (change - change.mean())) / spread) if spread > 1.0 else 0.0
+        o = float(change.mean() - g * level.mean())
+        left = change - o - g * level
+        gain.append(100 * g / minutes)
+        offset.append(o / minutes)
+        field.append(float(np.sqrt(np.mean(left ** 2))) / minutes)
+        explained.append(float(1 - left.var() / change.var()) if change.var() > 0 else 0.0)
+    return {"drift_gain_pct_per_min": gain, "drift_offset_per_min": offset, "drift_field_rms_per_min": field,
+            "drift_level_fit_share": explained}
 
 
 def simulated(key: str, n: int, interval_s: float) -> tuple:
@@ -156,6 +188,17 @@ def report(res: dict) -> str:
             lines.append(f"| {name} | {ch} | {s['background_mean'][c]:.1f} | {s['noise'][c]:.2f} | "
                          f"{s['fixed'][c]:.2f} | {s['fixed_pct'][c]:.2f} | {s['gradient_pct_per_px'][c]:.2f} | "
                          f"{s['drift_last'][c]:+.2f} | {s['drift_per_min'][c]:+.2f} |")
+    lines += ["", "The drift's make-up per minute (the last frames less the first, smoothed, fitted as offset + gain x "
+              "level):",
+              "", "| source | ch | gain %/min | offset counts/min | field rms counts/min | share fitted |",
+              "|---|---|---|---|---|---|"]
+    for name, s in res["sources"].items():
+        if "drift_gain_pct_per_min" not in s:  # a result made before the make-up was measured
+            continue
+        for c, ch in enumerate(CHANNELS):
+            lines.append(f"| {name} | {ch} | {s['drift_gain_pct_per_min'][c]:+.2f} | "
+                         f"{s['drift_offset_per_min'][c]:+.2f} | {s['drift_field_rms_per_min'][c]:.2f} | "
+                         f"{s['drift_level_fit_share'][c]:.2f} |")
     real = res.get("real")
     if real:
         s = res["sources"][real]
