@@ -328,8 +328,12 @@ def _train_pooled(jobs: list[Job], workers: int, force: bool, progress: bool, de
 
 
 def _pin(shares) -> None:
-    """A worker's start: its cores, before jax makes its thread pool (sized by the cores it may use)."""
+    """A worker's start: its cores, before jax makes its thread pool (sized by the cores it may use), and the
+    compile cache, so a worker loads the programs an earlier run compiled instead of compiling them again."""
     os.sched_setaffinity(0, shares.get())
+    from ffjax import compile_cache
+
+    compile_cache.enable()
 
 
 def _train_and_evaluate(job: Job, init, force: bool) -> tuple[float, float]:

@@ -47,3 +47,30 @@ def test_another_cpu_or_jax_reads_another_folder(monkeypatch):
     assert compile_cache.key() != here
     monkeypatch.setattr(compile_cache.jax, "__version__", "0.0.1")
     assert compile_cache.key().startswith("jax0.0.1-")
+
+
+def test_a_pooled_training_worker_uses_the_cache(tmp_path):
+    """experiments.kernel's worker processes (spawned: they inherit no jax config) turn the cache on at their start:
+    they had compiled every run's programs afresh, the ablation's and the sweep's included."""
+    import concurrent.futures
+    import multiprocessing
+
+    from experiments import kernel
+
+    ctx = multiprocessing.get_context("spawn")
+    shares = ctx.Queue()
+    shares.put(set(os.sched_getaffinity(0)))
+    os.environ["FFJAX_CACHE"], old = str(tmp_path / "c"), os.environ.get("FFJAX_CACHE")
+    try:
+        with concurrent.futures.ProcessPoolExecutor(1, mp_context=ctx, initializer=kernel._pin,
+                                                    initargs=(shares,)) as pool:
+            used = pool.submit(_cache_dir_in_worker).result()
+    finally:
+        os.environ.pop("FFJAX_CACHE") if old is None else os.environ.__setitem__("FFJAX_CACHE", old)
+    assert used == str(tmp_path / "c" / "xla" / compile_cache.key())
+
+
+def _cache_dir_in_worker() -> str:
+    import jax
+
+    return jax.config.jax_compilation_cache_dir

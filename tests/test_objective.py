@@ -131,3 +131,21 @@ def test_an_old_model_json_without_the_spec_falls_back_to_the_registry(variant_r
     path.write_text(json.dumps(info))
     assert store.describe(tmp_path / "run").spec == registry.get("dino_rd")
     assert store.load(tmp_path / "run").spec == registry.get("dino_rd")
+
+
+def test_a_weight_sweep_compiles_one_program():
+    """The weights' values are an array of the state (loss_weights), not constants of the program: two betas lower
+    to the same train step (so the persistent cache serves every beta of a sweep), and the loss still follows them."""
+    from test_train import fixed_batch
+
+    from ffjax.train import step
+
+    cfg = configs.get("smoke")
+    states = [train.init_state(cfg, dataclasses.replace(registry.get("dino_rd"), beta=b), jax.random.PRNGKey(0))
+              for b in (10.0, 1.0)]
+    batch = fixed_batch(cfg)
+    texts = [step.train_step.lower(s, batch).as_text() for s in states]
+    assert texts[0] == texts[1]
+    evals = [step.eval_step(s, {**batch, "mask": np.ones(8, np.float32)}) for s in states]
+    for ev, beta in zip(evals, (10.0, 1.0)):
+        assert float(ev["loss"]) == pytest.approx(float(ev["force_l1"]) + beta * float(ev["depth_mse"]), rel=1e-5)

@@ -74,16 +74,27 @@ TERMS: tuple[Term, ...] = (
 
 @dataclasses.dataclass(frozen=True)
 class Objective:
-    """The terms a state trains with and their weights (hashable: a static field of TrainState)."""
+    """The terms a state trains with and their weights (hashable: a static field of TrainState).
+
+    Only which terms are on (a non-zero weight) shapes the compiled step: the weights' values reach it as
+    TrainState.loss_weights, an array, so a sweep over a weight compiles its step once, not once per value."""
 
     terms: tuple[Term, ...]
-    weights: tuple[float, ...]
+    weights: tuple[float, ...] = dataclasses.field(compare=False)
+    active: tuple[bool, ...] = dataclasses.field(init=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "active", tuple(bool(w) for w in self.weights))
 
     @classmethod
     def of(cls, spec, terms: tuple[Term, ...] | None = None) -> Objective:
         """Weights from a Method's fields; the terms are TERMS unless given."""
         terms = TERMS if terms is None else tuple(terms)
         return cls(terms, tuple(t.weight_of(spec) for t in terms))
+
+    def weight_array(self):
+        """The weights as the float32 array a TrainState carries (its loss_weights)."""
+        return jnp.asarray(self.weights, jnp.float32)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -100,8 +111,10 @@ class Objective:
                 return jnp.sum(x * mask) / n
 
         logged, optimized = {}, []
-        for term, w in zip(self.terms, self.weights):
-            if term.needs is not None and not (w and term.needs in out):
+        weights = self.weights if state.loss_weights is None else state.loss_weights
+        for i, (term, on) in enumerate(zip(self.terms, self.active)):
+            w = weights[i]
+            if term.needs is not None and not (on and term.needs in out):
                 logged[term.name] = obj = reduce(jnp.zeros(out["force"].shape[:1], out["force"].dtype))
             else:
                 logged[term.name] = reduce(term.error(state, out, batch))

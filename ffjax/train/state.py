@@ -55,6 +55,8 @@ class TrainState:
     # train.compute_dtype: the train step runs forward and backward in this dtype on a cast copy of the
     # params; params, gradients, optimizer state and BatchNorm statistics stay float32. Evaluation is float32.
     compute_dtype: str = struct.field(pytree_node=False, default="float32")
+    # the objective's weights as an array (Objective.weight_array): traced, so weights compile no program of their own
+    loss_weights: jax.Array | None = None
 
     def variables(self) -> dict:
         out = {"params": self.params}
@@ -256,6 +258,7 @@ def init_state(
     compute_dtype = cfg_train["compute_dtype"]
     if compute_dtype not in COMPUTE_DTYPES:
         raise ValueError(f"train.compute_dtype must be one of {COMPUTE_DTYPES}, got {compute_dtype!r}")
+    objective = Objective.of(spec)
     return TrainState(
         step=jnp.zeros((), jnp.int32),
         params=params,
@@ -265,7 +268,8 @@ def init_state(
         model=model,
         tx=tx,
         labels_fn=labeler,
-        objective=Objective.of(spec),
+        objective=objective,
+        loss_weights=objective.weight_array(),
         bn_train=getattr(labeler, "backbone_trains", True),
         head_bn_train=getattr(labeler, "regressor_trains", True),
         force_weights=force_weights(cfg, cfg_train),

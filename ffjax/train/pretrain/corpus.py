@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from ffjax import sim
+from ffjax import compile_cache, sim
 from ffjax.data.preprocess import to_unit
 from ffjax.files import atomic_write, atomic_write_text
 from ffjax.sim.dataset import default_workers, render_size
@@ -86,7 +86,8 @@ def build(settings: dict, progress: bool = False, workers: int | None = None):
     if workers <= 1:
         results = map(_build_chunk, tasks)
     else:
-        pool = cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+        pool = cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                      initializer=compile_cache.enable)  # the simulator's programs load, not compile
         results = pool.map(_build_chunk, tasks)
     try:
         for lo, imgs, chunk_kinds, chunk_frames in results:
