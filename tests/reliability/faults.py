@@ -100,12 +100,11 @@ def _kill_parts(preset, kills, out, epochs, ablation, seed, env, progress) -> di
 
 
 def _env(out: Path) -> dict:
-    """Subprocess environment: one thread pool each, and a shared persistent XLA cache so a resumed run
-    does not recompile (the cached executable is the same program: results stay bitwise equal)."""
+    """Subprocess environment: a shared compile cache so a resumed run does not recompile (the cached executable is
+    the same program: results stay bitwise equal): the caller's FFJAX_CACHE (the test suite's), else one under out."""
     env = dict(os.environ)
-    env.update(JAX_COMPILATION_CACHE_DIR=str(out / "xla_cache"), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
-               JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0", PYTHONPATH=os.pathsep.join(
-                   [str(common.ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])))
+    env.setdefault("FFJAX_CACHE", str(out / "compile_cache"))
+    env["PYTHONPATH"] = os.pathsep.join([str(common.ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
     return env
 
 
