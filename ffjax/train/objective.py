@@ -92,10 +92,6 @@ class Objective:
         terms = TERMS if terms is None else tuple(terms)
         return cls(terms, tuple(t.weight_of(spec) for t in terms))
 
-    def weight_array(self):
-        """The weights as the float32 array a TrainState carries (its loss_weights)."""
-        return jnp.asarray(self.weights, jnp.float32)
-
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(t.name for t in self.terms)
@@ -111,9 +107,7 @@ class Objective:
                 return jnp.sum(x * mask) / n
 
         logged, optimized = {}, []
-        weights = self.weights if state.loss_weights is None else state.loss_weights
-        for i, (term, on) in enumerate(zip(self.terms, self.active)):
-            w = weights[i]
+        for term, on, w in zip(self.terms, self.active, state.loss_weights):
             if term.needs is not None and not (on and term.needs in out):
                 logged[term.name] = obj = reduce(jnp.zeros(out["force"].shape[:1], out["force"].dtype))
             else:

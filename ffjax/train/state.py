@@ -55,7 +55,7 @@ class TrainState:
     # train.compute_dtype: the train step runs forward and backward in this dtype on a cast copy of the
     # params; params, gradients, optimizer state and BatchNorm statistics stay float32. Evaluation is float32.
     compute_dtype: str = struct.field(pytree_node=False, default="float32")
-    # the objective's weights as an array (Objective.weight_array): traced, so weights compile no program of their own
+    # the objective's weights as a float32 array: traced, so a weight's value compiles no program of its own
     loss_weights: jax.Array | None = None
 
     def variables(self) -> dict:
@@ -269,7 +269,7 @@ def init_state(
         tx=tx,
         labels_fn=labeler,
         objective=objective,
-        loss_weights=objective.weight_array(),
+        loss_weights=jnp.asarray(objective.weights, jnp.float32),
         bn_train=getattr(labeler, "backbone_trains", True),
         head_bn_train=getattr(labeler, "regressor_trains", True),
         force_weights=force_weights(cfg, cfg_train),
