@@ -85,6 +85,23 @@ def shared(name: str, build) -> tuple[Path, object]:
     return _CACHE[name]
 
 
+def smoke_data() -> Path:
+    """The smoke preset's whole dataset with its pretraining corpus and both pretrained backbones (what
+    `experiments.ablation --preset smoke` makes before it trains), made once per test run for every worker. Read it,
+    or copy it (shutil.copytree) where a command may write into its data folder."""
+    def build(folder: Path) -> str:
+        from experiments import common, kernel
+
+        cfg, kinds = configs.get("smoke"), ["resnet", "vit"]
+        root = common.ensure_data(cfg, folder, progress=False)
+        kernel.pretraining_corpus(cfg, kinds, root, False, False)
+        for kind in kinds:
+            kernel.pretrained_backbone(cfg, kind, root, False, False)
+        return str(root)
+
+    return Path(shared("smoke_data", build)[1])
+
+
 def smoke_run() -> Path:
     """Path of a trained smoke run folder (one epoch of 2 steps on 16 presses; numbers mean nothing)."""
     if "run" not in _CACHE:

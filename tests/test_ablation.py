@@ -1,6 +1,7 @@
 """The main job end to end at the smoke preset: every stage, the files, the schema, and stage reuse."""
 
 import json
+import shutil
 from pathlib import Path
 
 import _pins
@@ -31,7 +32,11 @@ def _args(root: Path) -> list[str]:
 def shared_ablation() -> tuple[Path, dict]:
     """(its folder, its results): the smoke ablation of two methods, run once per test run for every worker
     (tests/_smoke_run.shared); FOLDER/data holds the smoke dataset and both pretrained backbones."""
-    return _smoke_run.shared("ablation", lambda root: ablation.main(_args(root)))
+    def build(root: Path) -> dict:
+        shutil.copytree(_smoke_run.smoke_data(), root / "data")
+        return ablation.main(_args(root))
+
+    return _smoke_run.shared("ablation", build)
 
 
 @pytest.fixture(scope="module")

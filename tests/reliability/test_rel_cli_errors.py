@@ -54,9 +54,9 @@ def test_an_interrupt_while_the_ablation_trains_stops_its_workers(tmp_path):
     import signal
     import time
 
-    from test_ablation import shared_ablation
+    import _smoke_run
 
-    data = shared_ablation()[0] / "data"  # the smoke dataset and both backbones: the command goes straight to training
+    data = _smoke_run.smoke_data()  # the smoke dataset and both backbones: the command goes straight to training
     out = tmp_path / "out"
     p = subprocess.Popen([sys.executable, "-m", "experiments.ablation", "--preset", "smoke", "--methods", "resnet_rd",
                           "dino_rd", "--data", str(data), "--out", str(out), "--workers", "2", "--quiet"],
