@@ -60,6 +60,9 @@ SPEC = {
         "tilt_max_deg": Key(15.0, num(0, 90, hi_open=True), before=7.0),
         "shear_noise": Key(0.06, NN, late=True),  # shear: std of the shear beyond Fz * tan(tilt), a fraction of Fz
         "shear_max": Key(2.0, NN),  # N; shear: |Fx|, |Fy| are redrawn above it (the simulator caps at mu * Fz)
+        # oblique loading: this share of each shape's presses is pushed sideways after contact instead (Fx, Fy
+        # uniform in +-shear_max, stick or, where Coulomb caps it, partial slip), its shear drawn apart from the lean
+        "sideways_share": Key(0.0, PROB, late=True),
         "ft_noise": Key(0.005, NN, before=0.0),  # N per axis on the labels: the release's F/T sensor at rest
         # share of the fine fixed pattern that is pigment on the gel (moves with it); not measurable at rest
         "pattern_moving": Key(0.5, PROB, before=1.0),
@@ -121,6 +124,9 @@ SPEC = {
         # forward/backward precision of the train step: "float32" or "bfloat16" (float32 master weights,
         # float32 losses, optimizer and BatchNorm statistics; evaluation stays float32)
         "compute_dtype": Key("float32", choice("float32", "bfloat16")),
+        # LED drift augmentation (ffjax.data.drift): each training frame drifts as the real Mini's LEDs do in up to
+        # this many minutes after its background (rates measured on the release's recording at rest); 0: off
+        "drift_minutes": Key(0.0, NN, late=True),
     },
     # DINO self-distillation of the backbones (ffjax.train.pretrain, docs/training.md); steps 0: load real
     # weights instead. Sized to stay a small part of a quick run on 2 cores (measured times: docs/training.md).

@@ -95,6 +95,10 @@ class ShuffledIndexBatches(grain.MapDataset):
         return np.concatenate([self._perm(int(e))[k[epochs == e]] for e in np.unique(epochs)])
 
 
+def _augmented(ds: grain.MapDataset, augment, seed: int) -> grain.MapDataset:
+    return ds if augment is None else ds.random_map(augment, seed=seed)
+
+
 def _mark_flags_parsed():
     # grain 0.2.18 worker processes read absl flags and raise UnparsedFlagAccessError unless parsed.
     if not flags.FLAGS.is_parsed():
@@ -104,13 +108,15 @@ def _mark_flags_parsed():
 def make_dataset(source, stats: Stats, input_size: int, batch_size: int, seed: int, shuffle: bool = True,
                  num_epochs: int | None = None, drop_remainder: bool = True, worker_count: int = 0,
                  in_memory: bool | None = None, process_index: int = 0, process_count: int = 1,
-                 arrays: dict | None = None) -> grain.IterDataset:
+                 arrays: dict | None = None, augment=None) -> grain.IterDataset:
     """Batches {"image": (B,S,S,3), "depth": (B,S,S), "force": (B,3)} float32 numpy.
 
     num_epochs=None repeats forever (each epoch reshuffled from `seed`). `iter(ds)` gives an iterator
     with get_state()/set_state() for checkpoints. worker_count > 0 streams through grain worker
     processes (call from under `if __name__ == "__main__":`). `process_index/process_count` give each
-    host a disjoint slice of every epoch. `arrays` reuses a load_arrays result (in-memory path).
+    host a disjoint slice of every epoch. `arrays` reuses a load_arrays result (in-memory path). `augment`: a
+    grain RandomMap applied to every batch (ffjax.data.drift), its draws fixed by `seed` and the batch's index, so a
+    resumed iterator gives the same frames.
     """
     n = len(source)
     if in_memory is None:
@@ -119,7 +125,7 @@ def make_dataset(source, stats: Stats, input_size: int, batch_size: int, seed: i
         arrays = arrays if arrays is not None else load_arrays(source, stats, input_size)
         if shuffle and process_count == 1 and num_epochs is None and drop_remainder:  # the training path
             ds = ShuffledIndexBatches(len(arrays["force"]), batch_size, seed).map(Gather(arrays))
-            return ds.to_iter_dataset(grain.ReadOptions(num_threads=0))
+            return _augmented(ds, augment, seed).to_iter_dataset(grain.ReadOptions(num_threads=0))
         ds = grain.MapDataset.range(len(arrays["force"]))
     else:
         ds = grain.MapDataset.source(source)
@@ -130,8 +136,9 @@ def make_dataset(source, stats: Stats, input_size: int, batch_size: int, seed: i
     ds = ds.repeat(num_epochs)
     if in_memory:
         ds = ds.batch(batch_size, drop_remainder=drop_remainder, batch_fn=np.asarray).map(Gather(arrays))
-        return ds.to_iter_dataset(grain.ReadOptions(num_threads=0))
-    ds = ds.map(Preprocess(stats, input_size)).batch(batch_size, drop_remainder=drop_remainder)
+        return _augmented(ds, augment, seed).to_iter_dataset(grain.ReadOptions(num_threads=0))
+    ds = _augmented(ds.map(Preprocess(stats, input_size)).batch(batch_size, drop_remainder=drop_remainder), augment,
+                    seed)
     if worker_count > 0:
         _mark_flags_parsed()
         return ds.to_iter_dataset().mp_prefetch(grain.MultiprocessingOptions(num_workers=worker_count))

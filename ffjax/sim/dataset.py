@@ -13,7 +13,11 @@ region that keeps the shape's 15 N footprint on the pad; yaw uniform; roll/pitch
 +-tilt_max_deg. data.loading "oblique" (the paper's): the robot presses along its tilted tool axis until
 the gel carries Fz, and the shear is what that path gives (`mechanics.oblique_batch`, data.path_steps
 increments); "shear" (before issue 32): pressed to Fz, then Fz * tan(tilt) plus noise (shear_noise * Fz)
-applied sideways, redrawn beyond +-shear_max. Either way the simulator caps the shear at mu * Fz. The
+applied sideways, redrawn beyond +-shear_max. data.sideways_share of the oblique train and val presses (per
+shape, on a random stream of its own; the test splits keep the paper's presses) are pressed to Fz at their pose
+and then pushed sideways by Fx, Fy uniform in +-shear_max, drawn apart from the lean, so the tool's tilt in the
+image does not tell their shear (shards then carry a "sideways" flag). Either way the simulator caps the shear
+at mu * Fz. The
 labels are the force the gel carries plus the F/T sensor's noise (data.ft_noise N per axis, Gaussian, the
 release's sensor at rest). Every sensor carries data.pattern_moving of its fine fixed pattern on the gel
 (`sensors.with_pattern_moving`). The train, val and unseen splits are pressed on data.train_sensor; every
@@ -73,6 +77,8 @@ MINI_KEYS = tuple(k for k in SENSOR_NAMES if get_sensor(k).name in MINI_NAMES)
 # Shards are stored uncompressed: camera noise and the smooth depth tails deflate little, for several times
 # the write time, and stored members load faster.
 COMPRESS = False
+SIDEWAYS_STREAM = 0x51DE  # the random stream of data.sideways_share's choice and pushes
+SIDEWAYS_SPLITS = ("train", "val")  # the test splits (Tables I-III) keep the paper's oblique presses
 _OURS = ("config.json", "manifest.json", "train", "val", "unseen", "sensor", "calib")
 
 
@@ -129,6 +135,8 @@ def gen_config(cfg: dict) -> dict:
     data = {k: d[k] for k in GEN_KEYS}
     if d["train_sensor"] != LEGACY_TRAIN_SENSOR:
         data["train_sensor"] = d["train_sensor"]
+    if d["sideways_share"]:  # named only when used: the folders written before it was a key stay valid
+        data["sideways_share"] = d["sideways_share"]
     if SENSOR_KEYS != _SENSORS_BEFORE:  # a sensor added (or removed) changes the splits and their seeds
         data["sensors"] = list(SENSOR_KEYS)
     return json.loads(json.dumps({"version": VERSION, "seed": int(cfg["seed"]), "data": data}))
@@ -184,8 +192,15 @@ def sample_presses(spec: SplitSpec, cfg: dict) -> dict:
         yaw = rng.uniform(-180.0, 180.0, n)
         tilt = rng.uniform(-d["tilt_max_deg"], d["tilt_max_deg"], (n, 2))
         if d["loading"] == "oblique":  # the shear comes from the path: the request is the normal force
-            parts.append({"shape_index": np.full(n, si), "force": np.column_stack([np.zeros((n, 2)), fz]),
-                          "x_mm": x, "y_mm": y, "yaw_deg": yaw, "tilt_deg": tilt})
+            part = {"shape_index": np.full(n, si), "force": np.column_stack([np.zeros((n, 2)), fz]),
+                    "x_mm": x, "y_mm": y, "yaw_deg": yaw, "tilt_deg": tilt}
+            share = float(d.get("sideways_share", 0.0)) if spec.name in SIDEWAYS_SPLITS else 0.0
+            if share:  # a stream of its own: the oblique presses' draws stay those of a split without the share
+                side_rng = np.random.default_rng([seed, spec.index, si, VERSION, SIDEWAYS_STREAM])
+                part["sideways"] = side_rng.permutation(n) < round(share * n)
+                push = side_rng.uniform(-d["shear_max"], d["shear_max"], (n, 2))
+                part["force"][:, :2] = np.where(part["sideways"][:, None], push, 0.0)
+            parts.append(part)
             continue
         # pushed sideways after the press: the tangential part is Fz * tan(tilt), plus noise
         base, spread = fz[:, None] * np.tan(np.radians(tilt)), d["shear_noise"] * fz[:, None]
@@ -215,15 +230,18 @@ def _press_safe(shapes, sensor, q: dict, size, data: dict) -> list:
     poses are pressed again, pulled inwards (_PULLS), in one batch per round."""
     n = len(shapes)
     out: list = [None] * n
+    paths = np.where(q["sideways"], "shear", data["loading"]) if "sideways" in q else np.full(n, data["loading"])
     todo = list(range(n))
     for scale, tilted in _PULLS:
-        tilt = [tuple(q["tilt_deg"][i]) if tilted else (0.0, 0.0) for i in todo]
-        got = sim.press_many([shapes[i] for i in todo], sensor, q["force"][todo], q["x_mm"][todo] * scale,
-                             q["y_mm"][todo] * scale, q["yaw_deg"][todo], tilt, [int(v) for v in q["seed"][todo]],
-                             size, path=data["loading"], steps=int(data["path_steps"]),
-                             quadrature=data["path_quadrature"])
-        for i, s in zip(todo, got):
-            out[i] = s
+        for path in sorted(set(paths[todo])):  # one batch per loading path
+            group = [i for i in todo if paths[i] == path]
+            tilt = [tuple(q["tilt_deg"][i]) if tilted else (0.0, 0.0) for i in group]
+            got = sim.press_many([shapes[i] for i in group], sensor, q["force"][group], q["x_mm"][group] * scale,
+                                 q["y_mm"][group] * scale, q["yaw_deg"][group], tilt,
+                                 [int(v) for v in q["seed"][group]], size, path=str(path),
+                                 steps=int(data["path_steps"]), quadrature=data["path_quadrature"])
+            for i, s in zip(group, got):
+                out[i] = s
         todo = [i for i in todo if isinstance(out[i], ValueError)]
         if not todo:
             return out
@@ -256,6 +274,8 @@ def render_shard(spec: SplitSpec, p: dict, lo: int, hi: int, size, data: dict) -
         out[k] = v.astype(np.float32) if v.dtype == np.float64 else v
     out["shape"] = np.array([spec.shapes[i] for i in idx_all])
     out["seed"] = q["seed"].astype(np.int64)
+    if "sideways" in q:
+        out["sideways"] = q["sideways"]
     return out
 
 

@@ -36,6 +36,7 @@ from tqdm.auto import tqdm
 
 from ffjax import data as fdata
 from ffjax import registry, store
+from ffjax.data import drift
 from ffjax.errors import CheckpointError
 from ffjax.files import atomic_write_text, check_writable, folder_lock
 from ffjax.models import output_affine
@@ -146,7 +147,7 @@ def _open_run(cfg, spec, data, run_dir: Path, resume, init_backbone, init_variab
     train_data = validation.Split(train_src, stats, input_size)
     val_data = validation.Split(val_src, stats, input_size) if val_src is not None else None
     it = iter(fdata.make_dataset(train_src, stats, input_size, bs, seed=int(cfg["seed"]), shuffle=True,
-                                 arrays=train_data.arrays))
+                                 arrays=train_data.arrays, augment=drift.augment(cfg["train"], stats)))
     meta = _new_meta(state.objective)
     if restoring:
         state, meta = _restore(ckpt, state, meta, it, mesh)
