@@ -70,9 +70,11 @@ def compiled_programs_released():
 
 # The suite's longest files, started first. pyproject's addopts deal whole files to the xdist workers
 # (--dist loadfile): a module's fixtures are built once, not once per worker, and no worker waits on a lock
-# (_smoke_run.shared) for the other to build what both drew. In collection order one of these drawn last would
-# leave the other worker idle for its whole length. test_reproduce builds the suite's smoke dataset first thing;
-# the files that read it (test_rel_cli_errors, test_ablation) come after enough other work not to wait for it.
+# (_smoke_run.shared) for the other to build what both drew. They are dealt in collection order
+# (--no-loadscope-reorder; xdist would otherwise deal the files with the most tests first, and the pipeline test's
+# file of four came last): one of these drawn last would leave the other worker idle for its whole length.
+# test_reproduce builds the suite's smoke dataset first thing; the files that read it (test_rel_cli_errors,
+# test_ablation) come after enough other work not to wait for it.
 FIRST = ("tests/test_reproduce.py", "tests/test_bench.py", "tests/reliability/test_rel_faults.py",
          "tests/reliability/test_rel_faults_cases.py", "tests/test_compute_dtype.py",
          "tests/reliability/test_rel_cli_errors.py")

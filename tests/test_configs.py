@@ -26,7 +26,8 @@ def test_merged_preset_matches_the_pinned_one(preset):
     split (issue 15; the snapshot adds only the keys that split gave a name: fz_min, tilt_max_deg, shear_noise,
     train_sensor, decoder.fast, vit.interpolate_offset, seeds, each at the value the code used before; issue 32
     turned tilt_max_deg to 15 and added loading, path_steps, ft_noise and pattern_moving; issue 30 added
-    path_quadrature and turned path_steps from 4 to 2; issue 64 added train.drift_minutes and data.sideways_share, both off)."""
+    path_quadrature and turned path_steps from 4 to 2; issue 64 added train.drift_minutes and data.sideways_share,
+    both off)."""
     got = {k: repr(v) for k, v in _flat(configs.get(preset)).items()}
     assert got == json.loads(PINNED.read_text())[preset]
 
